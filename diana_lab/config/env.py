@@ -1,0 +1,100 @@
+"""Config schemas of the env groups: ``action_space``, ``reward`` and ``episode``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from omegaconf import MISSING
+
+from diana_lab.config.store import register
+from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, ordered, positive
+
+
+@dataclass
+class ActionSpaceConfig:
+    """Where the next waypoint may be: a square of side ``size`` or a disc of radius ``radius`` around the rover."""
+
+    name: str = MISSING
+    shape: str = MISSING  # "square" | "circle"
+    size: float = 7.0  # square side (m)
+    radius: float = 4.0  # circle radius (m)
+    frame: str = "rover"  # "world": axes aligned with the map (paper); "rover": x forward, y left
+    min_distance: float = 0.0  # waypoints closer than this are pushed out to it (0 keeps the mapping exact)
+
+    def __post_init__(self) -> None:
+        one_of("action_space.shape", self.shape, ("square", "circle"))
+        one_of("action_space.frame", self.frame, ("world", "rover"))
+        positive("action_space.size", self.size)
+        positive("action_space.radius", self.radius)
+        non_negative("action_space.min_distance", self.min_distance)
+        extent = self.size / 2 if self.shape == "square" else self.radius
+        if self.min_distance >= extent:
+            raise ConfigError(f"action_space.min_distance ({self.min_distance}) must be smaller than the shape's "
+                              f"half-extent ({extent})")
+
+
+@dataclass
+class TermConfig:
+    """One reward term: a plain function ``fn(ctx, **params) -> float``, scaled by ``weight`` (0 disables it)."""
+
+    fn: str = MISSING
+    weight: float = 1.0
+    params: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class RewardConfig:
+    name: str = MISSING
+    terms: dict[str, TermConfig] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not self.terms:
+            raise ConfigError("reward.terms: expected at least one reward term")
+        for key, term in self.terms.items():
+            if not isinstance(term.weight, int | float):
+                raise ConfigError(f"reward.terms.{key}.weight: expected a number, got {term.weight!r}")
+
+
+@dataclass
+class CurriculumConfig:
+    enabled: bool = False
+    start_max_distance: float = 10.0  # the goal distance range starts at [min_distance, this] ...
+    episodes: int = 2000  # ... and widens linearly to max_distance over this many episodes (per env)
+
+
+@dataclass
+class EpisodeConfig:
+    """How episodes are drawn and when they end."""
+
+    name: str = "default"
+    min_distance: float = 8.0  # start-goal straight-line distance range (m)
+    max_distance: float = 30.0
+    goal_tolerance: float = 0.5  # success within this distance of the goal (m)
+    max_steps: int = 60  # waypoints per episode before the time limit (truncated)
+    max_time_s: float = 900.0  # simulated seconds per episode before the time limit (truncated)
+    stuck_steps: int = 6  # this many waypoints in a row ...
+    stuck_distance: float = 0.25  # ... with less net displacement than this (m): the episode ends as "stuck"
+    map_margin: float = 0.5  # waypoints are clamped this far (plus the robot radius) inside the map
+    distance_scale: float = 50.0  # goal distance is observed as distance / distance_scale
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+
+    def __post_init__(self) -> None:
+        non_negative("episode.min_distance", self.min_distance)
+        ordered("episode.min_distance", self.min_distance, "episode.max_distance", self.max_distance)
+        positive("episode.goal_tolerance", self.goal_tolerance)
+        positive("episode.max_steps", self.max_steps)
+        positive("episode.max_time_s", self.max_time_s)
+        positive("episode.stuck_steps", self.stuck_steps)
+        non_negative("episode.stuck_distance", self.stuck_distance)
+        non_negative("episode.map_margin", self.map_margin)
+        positive("episode.distance_scale", self.distance_scale)
+        if self.curriculum.enabled:
+            in_range("episode.curriculum.start_max_distance", self.curriculum.start_max_distance,
+                     self.min_distance, self.max_distance)
+            positive("episode.curriculum.episodes", self.curriculum.episodes)
+
+
+register("action_space", {"action_space": ActionSpaceConfig})
+register("reward", {"reward": RewardConfig})
+register("episode", {"episode": EpisodeConfig})

@@ -1,0 +1,185 @@
+"""Config schemas of the ``sensor`` group: ray-cast depth camera and 3-D lidar, their noise and encoding.
+
+Lengths in metres, angles in degrees (keys ending in ``_deg``). The mount is given in the rover frame
+(x forward, y left, z up, origin at the rover base link); ``mount_pitch_deg`` > 0 tilts the sensor down.
+The classes named by ``_target_`` live in :mod:`diana_lab.sensing`; this module only names them, so that
+composing a config never imports open3d.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from omegaconf import MISSING
+
+from diana_lab.config.store import register
+from diana_lab.config.validation import ConfigError, in_range, length, non_negative, one_of, ordered, positive
+
+ENCODINGS = ("depth_image", "elevation_map", "points")
+NOISE_PRESETS = ("none", "realistic", "harsh")  # their numbers live in diana_lab/sensing/noise.py
+POINT_METHODS = ("voxel", "fps")
+MAX_RAYS = 1 << 20  # a frame of more rays than this is a typo, not a sensor
+
+
+def positive_int(key: str, value: int) -> None:
+    """Resolutions and counts: a positive whole number (``sensor.width: expected a positive integer, got 0``)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ConfigError(f"{key}: expected a positive integer, got {value!r}")
+
+
+@dataclass
+class ElevationMapConfig:
+    """The ``elevation_map`` encoding: the cloud binned into a rover-centred, heading-aligned 2.5-D grid.
+
+    Rows run along the rover heading (row 0 is ``extent_forward`` ahead), columns across it (column 0 is
+    ``extent_side`` to the left). Each cell holds the highest point relative to the rover base, clipped to
+    ``+-height_clip``; a second channel marks cells that received any point.
+    """
+
+    cell_size: float = 0.25
+    extent_forward: float = 8.0
+    extent_back: float = 2.0
+    extent_side: float = 5.0
+    height_clip: float = 1.0
+    voxel_size: float = 0.1  # open3d voxel down-sampling before binning; 0 turns it off
+    outlier_removal: bool = False  # open3d statistical outlier removal (costs ~1 ms: off by default)
+    nb_neighbors: int = 12
+    std_ratio: float = 2.0
+
+    def __post_init__(self) -> None:
+        key = "sensor.elevation_map"
+        positive(f"{key}.cell_size", self.cell_size)
+        positive(f"{key}.extent_forward", self.extent_forward)
+        non_negative(f"{key}.extent_back", self.extent_back)
+        positive(f"{key}.extent_side", self.extent_side)
+        positive(f"{key}.height_clip", self.height_clip)
+        non_negative(f"{key}.voxel_size", self.voxel_size)
+        positive_int(f"{key}.nb_neighbors", self.nb_neighbors)
+        positive(f"{key}.std_ratio", self.std_ratio)
+        rows, cols = self.shape
+        if rows * cols > 512 * 512:
+            raise ConfigError(f"{key}.cell_size: {self.cell_size} gives a {rows} x {cols} grid; expected at "
+                              f"most 512 x 512 cells")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(rows, cols)`` of the grid (at least one cell each way)."""
+        rows = max(1, round((self.extent_forward + self.extent_back) / self.cell_size))
+        cols = max(1, round(2.0 * self.extent_side / self.cell_size))
+        return rows, cols
+
+
+@dataclass
+class PointsConfig:
+    """The ``points`` encoding: a fixed-size set of ``n_points`` cloud points plus a validity mask."""
+
+    n_points: int = 512
+    method: str = "voxel"  # 'voxel' (voxel grid, then an even subsample) or 'fps' (farthest-point sampling)
+    voxel_size: float = 0.1  # grid of the 'voxel' method (and a pre-filter for 'fps'); 0 turns it off
+
+    def __post_init__(self) -> None:
+        positive_int("sensor.points.n_points", self.n_points)
+        one_of("sensor.points.method", self.method, POINT_METHODS)
+        non_negative("sensor.points.voxel_size", self.voxel_size)
+
+
+@dataclass
+class SensorConfig:
+    """Keys common to every ray-cast sensor."""
+
+    _target_: str = MISSING
+    name: str = MISSING
+    mount_xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.3])
+    mount_pitch_deg: float = 0.0
+    min_range: float = 0.1
+    max_range: float = 10.0
+    noise: str = "none"  # preset: none | realistic | harsh
+    noise_level: float = 1.0  # scales every amplitude and probability of the preset
+    encoding: str = "depth_image"  # depth_image | elevation_map | points
+    nthreads: int = 1  # ray-casting threads; 0 lets open3d use every core
+    elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
+    points: PointsConfig = field(default_factory=PointsConfig)
+
+    def __post_init__(self) -> None:
+        length("sensor.mount_xyz", self.mount_xyz, 3)
+        for i, v in enumerate(self.mount_xyz):
+            in_range(f"sensor.mount_xyz[{i}]", v, -5.0, 5.0)
+        in_range("sensor.mount_pitch_deg", self.mount_pitch_deg, -90.0, 90.0)
+        non_negative("sensor.min_range", self.min_range)
+        positive("sensor.max_range", self.max_range)
+        ordered("sensor.min_range", self.min_range, "sensor.max_range", self.max_range)
+        one_of("sensor.noise", self.noise, NOISE_PRESETS)
+        non_negative("sensor.noise_level", self.noise_level)
+        one_of("sensor.encoding", self.encoding, ENCODINGS)
+        if isinstance(self.nthreads, bool) or not isinstance(self.nthreads, int) or self.nthreads < 0:
+            raise ConfigError(f"sensor.nthreads: expected an integer >= 0, got {self.nthreads!r}")
+
+
+@dataclass
+class DepthCameraConfig(SensorConfig):
+    """A pinhole depth camera (defaults: an Intel RealSense D435 at a low, RL-friendly resolution).
+
+    Mounted 0.2 m ahead of and 0.25 m above the base origin of a Jackal-size rover (about 0.35 m above
+    the ground) and pitched 20 deg down, it sees the ground from about 0.5 m out to the horizon, so the
+    band 1-8 m ahead that the waypoints fall in fills most of the picture.
+    """
+
+    _target_: str = "diana_lab.sensing.camera.DepthCamera"
+    name: str = "depth_camera"
+    mount_xyz: list[float] = field(default_factory=lambda: [0.2, 0.0, 0.25])
+    mount_pitch_deg: float = 20.0
+    min_range: float = 0.2
+    max_range: float = 10.0
+    width: int = 64
+    height: int = 48
+    hfov_deg: float = 87.0
+    vfov_deg: float = 58.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive_int("sensor.width", self.width)
+        positive_int("sensor.height", self.height)
+        in_range("sensor.hfov_deg", self.hfov_deg, 0.0, 180.0, inclusive=False)
+        in_range("sensor.vfov_deg", self.vfov_deg, 0.0, 180.0, inclusive=False)
+        if self.width * self.height > MAX_RAYS:
+            raise ConfigError(f"sensor.width x sensor.height: expected at most {MAX_RAYS} pixels, got "
+                              f"{self.width} x {self.height}")
+
+
+@dataclass
+class Lidar3dConfig(SensorConfig):
+    """A spinning multi-beam lidar (defaults: a Velodyne VLP-16's beams at 2 deg azimuth steps, 20 m)."""
+
+    _target_: str = "diana_lab.sensing.lidar.Lidar3d"
+    name: str = "lidar3d"
+    mount_xyz: list[float] = field(default_factory=lambda: [0.0, 0.0, 0.3])
+    mount_pitch_deg: float = 0.0
+    min_range: float = 0.3
+    max_range: float = 20.0
+    beams: int = 16  # vertical channels
+    vfov_min_deg: float = -15.0
+    vfov_max_deg: float = 15.0
+    horizontal_resolution_deg: float = 2.0  # azimuth step over the full 360 deg
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive_int("sensor.beams", self.beams)
+        in_range("sensor.vfov_min_deg", self.vfov_min_deg, -90.0, 90.0)
+        in_range("sensor.vfov_max_deg", self.vfov_max_deg, -90.0, 90.0)
+        if self.beams > 1:
+            ordered("sensor.vfov_min_deg", self.vfov_min_deg, "sensor.vfov_max_deg", self.vfov_max_deg)
+        in_range("sensor.horizontal_resolution_deg", self.horizontal_resolution_deg, 0.0, 360.0)
+        positive("sensor.horizontal_resolution_deg", self.horizontal_resolution_deg)
+        if self.beams * self.columns > MAX_RAYS:
+            raise ConfigError(f"sensor.horizontal_resolution_deg: {self.horizontal_resolution_deg} gives "
+                              f"{self.beams * self.columns} rays; expected at most {MAX_RAYS}")
+
+    @property
+    def columns(self) -> int:
+        """Azimuth samples per revolution (the resolution is rounded so that they tile 360 deg exactly)."""
+        return max(1, round(360.0 / self.horizontal_resolution_deg))
+
+
+# the paper's 112 x 112 preset uses the camera schema under its own option name
+register("sensor", {"depth_camera": DepthCameraConfig, "depth_camera_paper": DepthCameraConfig,
+                    "lidar3d": Lidar3dConfig})

@@ -1,0 +1,230 @@
+"""Config schemas of the simulation groups: ``world``, ``robot``, ``dynamics`` (and the controller)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from omegaconf import MISSING
+
+from diana_lab.config.validation import ConfigError, in_range, non_negative, ordered, positive
+
+# ----------------------------------------------------------------------------------------------- world
+
+
+@dataclass
+class WorldConfig:
+    """Common world keys. ``_target_`` builds a :class:`diana_lab.sim.world.World`."""
+
+    _target_: str = MISSING
+    name: str = MISSING
+    seed: int = 0
+    obstacle_resolution: float = 0.1
+
+    def __post_init__(self) -> None:
+        positive("world.obstacle_resolution", self.obstacle_resolution)
+
+
+@dataclass
+class MarsYardConfig(WorldConfig):
+    _target_: str = "diana_lab.sim.worlds.mars_yard"
+    name: str = "mars_yard"
+
+
+@dataclass
+class FlatConfig(WorldConfig):
+    _target_: str = "diana_lab.sim.worlds.flat"
+    name: str = "flat"
+    size_x: float = 40.0
+    size_y: float = 40.0
+    resolution: float = 0.25
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive("world.size_x", self.size_x)
+        positive("world.size_y", self.size_y)
+        positive("world.resolution", self.resolution)
+        if self.resolution > min(self.size_x, self.size_y) / 2:
+            raise ConfigError(f"world.resolution: expected at most half the world size, got {self.resolution}")
+
+
+@dataclass
+class HillsConfig(FlatConfig):
+    _target_: str = "diana_lab.sim.worlds.hills"
+    name: str = "hills"
+    max_slope_deg: float = 8.0
+    feature_size: float = 8.0
+    amplitude: float = 1.5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        in_range("world.max_slope_deg", self.max_slope_deg, 0.0, 10.0, inclusive=False)
+        positive("world.feature_size", self.feature_size)
+        positive("world.amplitude", self.amplitude)
+
+
+@dataclass
+class CratersConfig(FlatConfig):
+    _target_: str = "diana_lab.sim.worlds.craters"
+    name: str = "craters"
+    size_x: float = 50.0
+    size_y: float = 50.0
+    resolution: float = 0.2
+    n_craters: int = 6
+    crater_radius: tuple[float, float] = (2.0, 6.0)
+    dune_amplitude: float = 0.3
+    dune_wavelength: float = 9.0
+    rock_density: float = 0.02  # rocks per square metre
+    rock_size: tuple[float, float] = (0.25, 0.8)  # rock diameter range in metres
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        non_negative("world.n_craters", self.n_craters)
+        positive("world.crater_radius[0]", self.crater_radius[0])
+        ordered("world.crater_radius[0]", self.crater_radius[0], "world.crater_radius[1]", self.crater_radius[1])
+        non_negative("world.dune_amplitude", self.dune_amplitude)
+        positive("world.dune_wavelength", self.dune_wavelength)
+        in_range("world.rock_density", self.rock_density, 0.0, 1.0)
+        positive("world.rock_size[0]", self.rock_size[0])
+        ordered("world.rock_size[0]", self.rock_size[0], "world.rock_size[1]", self.rock_size[1])
+
+
+@dataclass
+class DemConfig(WorldConfig):
+    """The user's own elevation model (GeoTIFF/TIFF, PNG 8/16-bit, or .npy)."""
+
+    _target_: str = "diana_lab.sim.worlds.dem"
+    name: str = "dem"
+    path: str = MISSING
+    size_x: float = MISSING
+    size_y: float = MISSING
+    height_scale: float = 1.0
+    height_offset: float = 0.0
+    obstacles: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        positive("world.size_x", self.size_x)
+        positive("world.size_y", self.size_y)
+        positive("world.height_scale", self.height_scale)
+
+
+# ----------------------------------------------------------------------------------------------- robot
+
+
+@dataclass
+class RobotConfig:
+    """A rover: its URDF, wheels, footprint, speeds and limits. Lengths in metres, angles in degrees."""
+
+    name: str = MISSING
+    urdf: str = MISSING  # "package:urdf/jackal.urdf" (diana_lab/assets) or "pybullet_data:husky/husky.urdf"
+    wheel_joints_left: list[str] = field(default_factory=list)
+    wheel_joints_right: list[str] = field(default_factory=list)
+    wheel_radius: float = MISSING
+    track_width: float = MISSING  # lateral distance between left and right wheel centres
+    axle_x: list[float] = field(default_factory=list)  # wheel axle positions along the body x axis
+    length: float = MISSING
+    width: float = MISSING
+    height: float = MISSING
+    mass: float = MISSING
+    cruise_speed: float = 0.33  # m/s (the paper's top rover speed)
+    turn_speed: float = 0.8  # rad/s, turning in place
+    max_wheel_torque: float = 20.0  # N m per wheel
+    ground_clearance: float = 0.05
+    max_step_height: float = 0.1  # tallest step the wheels climb
+    max_slope_deg: float = 25.0  # steepest climbable slope
+    tipover_deg: float = 40.0  # roll or pitch beyond this is a tip-over
+    base_height: float = 0.1  # base link origin above the ground plane when standing on flat ground
+
+    def __post_init__(self) -> None:
+        for key in ("wheel_radius", "track_width", "length", "width", "height", "mass", "cruise_speed",
+                    "turn_speed", "max_wheel_torque", "max_slope_deg", "tipover_deg"):
+            positive(f"robot.{key}", getattr(self, key))
+        non_negative("robot.ground_clearance", self.ground_clearance)
+        non_negative("robot.max_step_height", self.max_step_height)
+        in_range("robot.cruise_speed", self.cruise_speed, 0.01, 3.0)
+        in_range("robot.tipover_deg", self.tipover_deg, 1.0, 89.0)
+        in_range("robot.max_slope_deg", self.max_slope_deg, 1.0, 89.0)
+        if not self.wheel_joints_left or not self.wheel_joints_right:
+            raise ConfigError("robot.wheel_joints_left / wheel_joints_right: expected at least one joint per side")
+        if len(self.axle_x) < 2:
+            raise ConfigError(f"robot.axle_x: expected at least two axle positions, got {list(self.axle_x)}")
+
+    @property
+    def radius(self) -> float:
+        """Radius of the circle that encloses the footprint."""
+        return 0.5 * (self.length**2 + self.width**2) ** 0.5
+
+
+# ----------------------------------------------------------------------------------------------- controller + dynamics
+
+
+@dataclass
+class ControllerConfig:
+    """The paper's turn-then-drive position controller."""
+
+    heading_tolerance_deg: float = 5.0  # turn in place until the heading error is below this
+    position_tolerance: float = 0.2  # waypoint reached within this distance (m)
+    steer_gain: float = 1.5  # heading correction while driving (rad/s per rad)
+    timeout_factor: float = 2.5  # give up after this many times the nominal time ...
+    timeout_margin: float = 5.0  # ... plus this many seconds
+    rate_hz: float = 10.0  # control rate in physics mode
+
+    def __post_init__(self) -> None:
+        in_range("dynamics.controller.heading_tolerance_deg", self.heading_tolerance_deg, 0.1, 90.0)
+        positive("dynamics.controller.position_tolerance", self.position_tolerance)
+        non_negative("dynamics.controller.steer_gain", self.steer_gain)
+        in_range("dynamics.controller.timeout_factor", self.timeout_factor, 1.0, 100.0)
+        non_negative("dynamics.controller.timeout_margin", self.timeout_margin)
+        positive("dynamics.controller.rate_hz", self.rate_hz)
+
+
+@dataclass
+class PoseNoiseConfig:
+    """Noise of the pose estimate the agent and the controller see (zero: perfect localisation)."""
+
+    position_std: float = 0.0  # m
+    yaw_std_deg: float = 0.0
+    tilt_std_deg: float = 0.0
+
+    def __post_init__(self) -> None:
+        non_negative("dynamics.pose_noise.position_std", self.position_std)
+        non_negative("dynamics.pose_noise.yaw_std_deg", self.yaw_std_deg)
+        non_negative("dynamics.pose_noise.tilt_std_deg", self.tilt_std_deg)
+
+
+@dataclass
+class DynamicsConfig:
+    _target_: str = MISSING
+    name: str = MISSING
+    controller: ControllerConfig = field(default_factory=ControllerConfig)
+    pose_noise: PoseNoiseConfig = field(default_factory=PoseNoiseConfig)
+    stuck_window_s: float = 6.0  # stuck: less than stuck_distance of progress within this window
+    stuck_distance: float = 0.1
+
+
+@dataclass
+class KinematicConfig(DynamicsConfig):
+    _target_: str = "diana_lab.sim.kinematic.KinematicDynamics"
+    name: str = "kinematic"
+    sample_spacing: float = 0.1  # m between terrain checks along the path
+
+    def __post_init__(self) -> None:
+        positive("dynamics.sample_spacing", self.sample_spacing)
+        positive("dynamics.stuck_window_s", self.stuck_window_s)
+
+
+@dataclass
+class PhysicsConfig(DynamicsConfig):
+    _target_: str = "diana_lab.sim.physics.PhysicsDynamics"
+    name: str = "physics"
+    time_step: float = 1.0 / 60.0
+    solver_iterations: int = 10
+    friction: float = 0.9
+    settle_time_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        in_range("dynamics.time_step", self.time_step, 1e-4, 0.05)
+        positive("dynamics.solver_iterations", self.solver_iterations)
+        positive("dynamics.friction", self.friction)
+        non_negative("dynamics.settle_time_s", self.settle_time_s)
+        positive("dynamics.stuck_window_s", self.stuck_window_s)

@@ -1,0 +1,42 @@
+"""Small checks used by the config dataclasses' ``__post_init__``; each names the key and what was expected."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+
+class ConfigError(ValueError):
+    """A config value that cannot work; the message names the key and what was expected."""
+
+
+def positive(key: str, value: float) -> None:
+    if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
+        raise ConfigError(f"{key}: expected a positive number, got {value!r}")
+
+
+def non_negative(key: str, value: float) -> None:
+    if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+        raise ConfigError(f"{key}: expected a number >= 0, got {value!r}")
+
+
+def in_range(key: str, value: float, lo: float, hi: float, *, inclusive: bool = True) -> None:
+    ok = lo <= value <= hi if inclusive else lo < value < hi
+    if not (isinstance(value, int | float) and math.isfinite(value) and ok):
+        bracket = f"[{lo}, {hi}]" if inclusive else f"({lo}, {hi})"
+        raise ConfigError(f"{key}: expected a number in {bracket}, got {value!r}")
+
+
+def ordered(key_lo: str, lo: float, key_hi: str, hi: float) -> None:
+    if not lo < hi:
+        raise ConfigError(f"{key_lo} ({lo}) must be smaller than {key_hi} ({hi})")
+
+
+def one_of(key: str, value: str, options: Sequence[str]) -> None:
+    if value not in options:
+        raise ConfigError(f"{key}: expected one of {', '.join(map(repr, options))}, got {value!r}")
+
+
+def length(key: str, value: Sequence, n: int) -> None:
+    if len(value) != n:
+        raise ConfigError(f"{key}: expected {n} values, got {len(value)} ({list(value)!r})")

@@ -1,0 +1,3 @@
+"""The navigation environment and its parts (action spaces, rewards, episodes, rendering)."""
+
+ENV_ID = "diana_lab/RoverNav-v0"

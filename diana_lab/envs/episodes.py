@@ -1,0 +1,80 @@
+"""Episode sampling: a start and a goal in the same connected traversable region, so a path exists.
+
+Traversability comes from the planner's cost map (slope, step and roughness limits of the robot, obstacles
+inflated by its footprint), which the ``astar`` baseline and SPL use too: every sampled episode is solvable by
+construction. An optional curriculum widens the goal distance from ``curriculum.start_max_distance`` to
+``max_distance`` over the first ``curriculum.episodes`` episodes of each env.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from diana_lab.config.env import EpisodeConfig
+from diana_lab.config.sim import RobotConfig
+from diana_lab.config.validation import ConfigError
+from diana_lab.planning import CostMap, build_costmap
+from diana_lab.sim.world import World
+
+MAX_TRIES = 64
+
+
+@dataclass(frozen=True)
+class Episode:
+    start: np.ndarray  # (x, y)
+    yaw: float
+    goal: np.ndarray  # (x, y)
+
+
+class EpisodeSampler:
+    def __init__(self, cfg: EpisodeConfig, world: World, robot: RobotConfig, costmap: CostMap | None = None) -> None:
+        self.cfg, self.world = cfg, world
+        self.costmap = costmap if costmap is not None else build_costmap(world, robot)
+        labels = self.costmap.components
+        ids, counts = np.unique(labels[labels > 0], return_counts=True)
+        if ids.size == 0:
+            raise ConfigError(f"world '{world.name}': no traversable cell for robot '{robot.name}' "
+                              "(slopes, steps or obstacles exceed its limits everywhere)")
+        iy, ix = np.nonzero(labels > 0)
+        x, y = self.costmap.cell_to_world(ix, iy)
+        self._xy = np.column_stack([x, y])
+        self._label = labels[iy, ix]
+        # draw starts from regions that are large enough to hold an episode, in proportion to their size
+        big = ids[counts * self.costmap.resolution**2 >= math.pi * cfg.min_distance**2 / 4]
+        self._start_pool = np.flatnonzero(np.isin(self._label, big if big.size else ids[[np.argmax(counts)]]))
+        self.episodes_drawn = 0
+
+    def max_distance(self) -> float:
+        c = self.cfg.curriculum
+        if not c.enabled:
+            return self.cfg.max_distance
+        frac = min(1.0, self.episodes_drawn / c.episodes)
+        return c.start_max_distance + frac * (self.cfg.max_distance - c.start_max_distance)
+
+    def sample(self, rng: np.random.Generator, min_distance: float | None = None,
+               max_distance: float | None = None) -> Episode:
+        lo = self.cfg.min_distance if min_distance is None else min_distance
+        hi = self.max_distance() if max_distance is None else max_distance
+        for _ in range(MAX_TRIES):
+            i = int(self._start_pool[rng.integers(len(self._start_pool))])
+            start = self._xy[i]
+            d = np.hypot(*(self._xy - start).T)
+            candidates = np.flatnonzero((self._label == self._label[i]) & (d >= lo) & (d <= hi))
+            if candidates.size:
+                goal = self._xy[candidates[rng.integers(candidates.size)]]
+                self.episodes_drawn += 1
+                return Episode(start.copy(), float(rng.uniform(-math.pi, math.pi)), goal.copy())
+        raise ConfigError(f"episode.min_distance/max_distance: no start/goal pair {lo}..{hi} m apart in one "
+                          f"traversable region of world '{self.world.name}' after {MAX_TRIES} tries; "
+                          "lower the distances or use a larger world")
+
+    def check_point(self, xy: np.ndarray, what: str) -> None:
+        """Fixed episodes (``reset(options=...)``) must lie on the map."""
+        xy = np.asarray(xy, dtype=np.float64)
+        if xy.shape != (2,) or not np.all(np.isfinite(xy)):
+            raise ValueError(f"reset options '{what}': expected a finite (x, y) pair, got {xy.tolist()}")
+        if not bool(self.world.terrain.contains(xy[0], xy[1])):
+            raise ValueError(f"reset options '{what}': {xy.tolist()} lies outside the map {self.world.bounds}")

@@ -1,0 +1,116 @@
+"""Reward terms as plain functions, configured as data (``reward.terms.<name>: {fn, weight, params}``).
+
+Each term returns an unweighted value where positive is good (penalties return negative values); the
+:class:`RewardManager` multiplies by the weight, sums, and reports every weighted term so that
+``info["reward_terms"]`` shows what the agent was paid for. A sweep reweights terms without touching code.
+"""
+
+from __future__ import annotations
+
+import inspect
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from hydra.utils import get_method
+
+from diana_lab.config.env import RewardConfig
+from diana_lab.config.validation import ConfigError
+from diana_lab.sim.state import WaypointResult
+
+
+@dataclass(frozen=True)
+class RewardContext:
+    """Everything a term may look at for one step (one executed waypoint)."""
+
+    prev_distance: float  # to the goal before the step (m)
+    distance: float  # to the goal after the step (m)
+    heading_error: float  # rad, goal bearing minus rover heading after the step
+    waypoint: WaypointResult
+    outcome: str | None  # episode outcome if the episode ended on this step
+    step: int  # steps taken in the episode so far (including this one)
+
+
+# --------------------------------------------------------------------------- terms (paper section 5.3)
+def progress(ctx: RewardContext, scale: float = 1.0) -> float:
+    """Metres gained towards the goal in this step (negative when moving away)."""
+    return (ctx.prev_distance - ctx.distance) / scale
+
+
+def heading(ctx: RewardContext) -> float:
+    """1 when facing the goal, -1 when facing away: ``1 - 2 sqrt(|error| / pi)`` (DIANA-Gym's shape)."""
+    return 1.0 - 2.0 * math.sqrt(min(abs(ctx.heading_error), math.pi) / math.pi)
+
+
+def _tilt_penalty(angles: np.ndarray, deadband_deg: float, power: float) -> float:
+    if len(angles) == 0:
+        return 0.0
+    excess = max(float(np.max(np.abs(angles))) - math.radians(deadband_deg), 0.0)
+    return -(excess**power)
+
+
+def roll(ctx: RewardContext, deadband_deg: float = 5.0, power: float = 2.0) -> float:
+    """Penalty on the largest roll of the step beyond the deadband (radians**power); none within it."""
+    return _tilt_penalty(ctx.waypoint.trace_rp[:, 0], deadband_deg, power)
+
+
+def pitch(ctx: RewardContext, deadband_deg: float = 5.0, power: float = 2.0) -> float:
+    """Penalty on the largest pitch of the step beyond the deadband (radians**power); none within it."""
+    return _tilt_penalty(ctx.waypoint.trace_rp[:, 1], deadband_deg, power)
+
+
+def goal(ctx: RewardContext) -> float:
+    return 1.0 if ctx.outcome == "success" else 0.0
+
+
+def collision(ctx: RewardContext) -> float:
+    return -1.0 if ctx.outcome == "collision" else 0.0
+
+
+def tipover(ctx: RewardContext) -> float:
+    return -1.0 if ctx.outcome == "tipover" else 0.0
+
+
+def out_of_bounds(ctx: RewardContext) -> float:
+    return -1.0 if ctx.outcome == "out_of_bounds" else 0.0
+
+
+def step(ctx: RewardContext) -> float:
+    """-1 per waypoint: a time penalty that favours short episodes."""
+    return -1.0
+
+
+def time(ctx: RewardContext, scale: float = 10.0) -> float:
+    """Simulated seconds spent on the step, negative (per ``scale`` seconds)."""
+    return -ctx.waypoint.duration / scale
+
+
+def stall(ctx: RewardContext) -> float:
+    """-1 when the controller could not finish the waypoint (stuck at a slope or gave up)."""
+    return -1.0 if ctx.waypoint.outcome in ("stuck", "gave_up") else 0.0
+
+
+# --------------------------------------------------------------------------- manager
+class RewardManager:
+    """Resolves the configured terms once and evaluates them every step."""
+
+    def __init__(self, cfg: RewardConfig) -> None:
+        self.terms: list[tuple[str, Callable[..., float], float, dict]] = []
+        for name, term in cfg.terms.items():
+            try:
+                fn = get_method(term.fn)
+            except Exception as exc:
+                raise ConfigError(f"reward.terms.{name}.fn: cannot import '{term.fn}' ({exc})") from exc
+            params = dict(term.params)
+            accepted = set(inspect.signature(fn).parameters) - {"ctx"}
+            unknown = set(params) - accepted
+            if unknown:
+                raise ConfigError(f"reward.terms.{name}.params: unknown parameter(s) {sorted(unknown)} for "
+                                  f"{term.fn}; it accepts {sorted(accepted) or 'none'}")
+            self.terms.append((name, fn, float(term.weight), params))
+
+    def __call__(self, ctx: RewardContext) -> tuple[float, dict[str, float]]:
+        values = {name: weight * float(fn(ctx, **params)) if weight else 0.0
+                  for name, fn, weight, params in self.terms}
+        return float(sum(values.values())), values

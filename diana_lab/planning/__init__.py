@@ -1,0 +1,21 @@
+"""Traversability and shortest paths: the cost map, Dijkstra/any-angle planning, SPL's reference length.
+
+Used by the episode sampler (start and goal in one connected component, so a path exists), by evaluation
+(SPL's shortest path length) and by the ``astar`` oracle baseline (waypoints along the planned path).
+"""
+
+from diana_lab.planning.costmap import CostMap, CostMapConfig, build_costmap
+from diana_lab.planning.hazards import HazardLayers, terrain_hazards
+from diana_lab.planning.paths import Path, plan, shortest_path_length, simplify
+
+__all__ = [
+    "CostMap",
+    "CostMapConfig",
+    "HazardLayers",
+    "Path",
+    "build_costmap",
+    "plan",
+    "shortest_path_length",
+    "simplify",
+    "terrain_hazards",
+]

@@ -1,0 +1,83 @@
+"""What both dynamics models report: the rover state and the outcome of executing one waypoint."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+Outcome = Literal["reached", "gave_up", "collision", "tipover", "stuck", "out_of_bounds", "sim_error"]
+FAILURES: tuple[str, ...] = ("collision", "tipover", "stuck", "out_of_bounds", "sim_error")
+
+
+@dataclass
+class RoverState:
+    """Ground-truth rover state. Angles in radians; ``rpy`` is (roll, pitch, yaw), ZYX convention."""
+
+    position: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    rpy: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    linear_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    angular_velocity: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    time: float = 0.0  # simulated seconds since reset
+
+    @property
+    def xy(self) -> np.ndarray:
+        return self.position[:2]
+
+    @property
+    def yaw(self) -> float:
+        return float(self.rpy[2])
+
+    @property
+    def tilt_deg(self) -> float:
+        """Angle between the body's up axis and the world vertical."""
+        return tilt_deg(self.rpy[0], self.rpy[1])
+
+    def copy(self) -> RoverState:
+        return RoverState(self.position.copy(), self.rpy.copy(), self.linear_velocity.copy(),
+                          self.angular_velocity.copy(), self.time)
+
+
+def tilt_deg(roll: np.ndarray | float, pitch: np.ndarray | float) -> np.ndarray | float:
+    """Tilt of the body z axis from vertical for ZYX roll/pitch: ``acos(cos(roll) cos(pitch))``."""
+    return np.degrees(np.arccos(np.clip(np.cos(roll) * np.cos(pitch), -1.0, 1.0)))
+
+
+@dataclass
+class WaypointResult:
+    """The outcome of handing one waypoint to the position controller.
+
+    ``trace_xy``/``trace_tilt_deg``/``trace_rp`` sample the driven path (including the final pose) so that
+    evaluation and rendering never have to re-simulate it.
+    """
+
+    outcome: Outcome
+    duration: float  # simulated seconds spent on this waypoint
+    path_length: float  # metres driven (xy)
+    trace_xy: np.ndarray  # (K, 2)
+    trace_tilt_deg: np.ndarray  # (K,)
+    trace_rp: np.ndarray  # (K, 2) roll, pitch in radians
+    detail: str = ""  # human-readable reason, e.g. which body was hit
+    trace_t: np.ndarray | None = None  # (K,) seconds since the waypoint started; None: evenly spaced
+
+    @property
+    def reached(self) -> bool:
+        return self.outcome == "reached"
+
+    @property
+    def failed(self) -> bool:
+        return self.outcome in FAILURES
+
+    def sample_durations(self) -> np.ndarray:
+        """Seconds each trace sample stands for (for time-weighted statistics such as time over 15 degrees)."""
+        k = len(self.trace_tilt_deg)
+        if k == 0:
+            return np.zeros(0)
+        if self.trace_t is None or len(self.trace_t) != k:
+            return np.full(k, self.duration / k)
+        return np.diff(np.asarray(self.trace_t, dtype=np.float64), prepend=0.0).clip(min=0.0)
+
+    @property
+    def max_tilt_deg(self) -> float:
+        return float(self.trace_tilt_deg.max()) if len(self.trace_tilt_deg) else 0.0

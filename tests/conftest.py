@@ -1,0 +1,45 @@
+"""Shared fixtures: worlds and robots composed from the real ``conf/`` tree."""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+from diana_lab.config import build, compose, to_object  # noqa: E402
+
+
+@pytest.fixture(scope="session")
+def mars_yard():
+    return build(to_object("world", "mars_yard"))
+
+
+@pytest.fixture(scope="session")
+def flat_world():
+    return build(to_object("world", "flat"))
+
+
+@pytest.fixture(scope="session")
+def hills_world():
+    return build(to_object("world", "hills"))
+
+
+@pytest.fixture(scope="session")
+def jackal():
+    return to_object("robot", "jackal")
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(1234)
+
+
+def world_from_config(overrides: list[str]):
+    """A world from ``world=...`` overrides (only the world group is composed)."""
+    name = next(o.split("=", 1)[1] for o in overrides if o.startswith("world="))
+    rest = [o for o in overrides if not o.startswith("world=")]
+    cfg = compose(rest, config_name=f"world/{name}")
+    return build(to_object("world", cfg.world))
