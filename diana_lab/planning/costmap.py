@@ -44,7 +44,9 @@ class CostMapConfig:
     slope_limit_deg: float | None = None  # None: robot.max_slope_deg
     step_limit: float | None = None  # None: robot.max_step_height
     roughness_limit: float | None = None  # RMS residual (m); None: robot.ground_clearance
-    obstacle_height: float | None = None  # lethal obstacle height; None: min(ground_clearance, max_step_height)
+    obstacle_height: float | None = (
+        None  # lethal obstacle height; None: min(ground_clearance, max_step_height)
+    )
     inflation_margin: float = 0.0  # m added to robot.radius around lethal obstacles
     border_margin: float | None = None  # m along the map edge that is untraversable; None: robot.radius
 
@@ -133,7 +135,7 @@ class CostMap:
 
     @property
     def components(self) -> np.ndarray:
-        """Component label of every cell (0 = untraversable); cells that share a label are mutually reachable."""
+        """Component label of every cell (0 = untraversable); cells sharing a label are mutually reachable."""
         return self._labels[0]
 
     @property
@@ -159,7 +161,7 @@ class CostMap:
 
     @cached_property
     def nearest_free(self) -> tuple[np.ndarray, np.ndarray]:
-        """For every cell, ``(distance m, flat index)`` of the nearest traversable cell (for snapping starts)."""
+        """For every cell, ``(distance m, flat index)`` of the nearest traversable cell (to snap starts)."""
         if not self.free.any():
             return np.full(self.shape, np.inf), np.full(self.shape, -1, dtype=np.int64)
         dist, (iy, ix) = ndi.distance_transform_edt(~self.free, return_indices=True)
@@ -178,22 +180,30 @@ def _grid_resolution(world: World, cfg: CostMapConfig) -> float:
     return max(spacing, coarsest)
 
 
-def _pool_to_cells(layer: np.ndarray, world: World, cell_x: np.ndarray, cell_y: np.ndarray,
-                   resolution: float) -> np.ndarray:
-    """Worst terrain-sample value within each cell (identity when cells coincide with samples)."""
+def _pool_to_cells(
+    layer: np.ndarray, world: World, cell_x: np.ndarray, cell_y: np.ndarray, resolution: float
+) -> np.ndarray:
+    """Worst terrain-sample value within each cell (the samples themselves when cells coincide with them).
+
+    A cell of side ``resolution`` around ``c`` holds samples up to ``resolution / 2`` from ``c``, i.e. up to
+    ``k = floor(resolution / (2 d) + 1/2)`` samples either side of the sample nearest to ``c``.
+    """
     t = world.terrain
-    sx = max(1, int(np.ceil(resolution / t.dx - 1e-9)))
-    sy = max(1, int(np.ceil(resolution / t.dy - 1e-9)))
-    if sx > 1 or sy > 1:
-        layer = ndi.maximum_filter(layer, size=(sy | 1, sx | 1), mode="nearest")
+    k = [
+        0 if abs(resolution - d) < 1e-9 else int(np.floor(resolution / (2.0 * d) + 0.5 + 1e-9))
+        for d in (t.dy, t.dx)
+    ]
+    if any(k):
+        layer = ndi.maximum_filter(layer, size=(2 * k[0] + 1, 2 * k[1] + 1), mode="nearest")
     ny, nx = t.shape
     ix = np.clip(np.rint((cell_x - t.x_min) / t.dx).astype(np.int64), 0, nx - 1)
     iy = np.clip(np.rint((cell_y - t.y_min) / t.dy).astype(np.int64), 0, ny - 1)
     return layer[np.ix_(iy, ix)]
 
 
-def _obstacle_band(world: World, cell_x: np.ndarray, cell_y: np.ndarray, height: float,
-                   radius: float) -> np.ndarray:
+def _obstacle_band(
+    world: World, cell_x: np.ndarray, cell_y: np.ndarray, height: float, radius: float
+) -> np.ndarray:
     """Cells whose centre lies within ``radius`` of an obstacle taller than ``height``.
 
     The obstacle raster comes from :attr:`World.obstacle_map`; each raster sample stands for a square of side
@@ -257,8 +267,9 @@ def build_costmap(world: World, robot: RobotConfig, cfg: CostMapConfig | None = 
     obstacle_height = cfg.obstacle_height
     if obstacle_height is None:
         obstacle_height = min(robot.ground_clearance, robot.max_step_height)
-    layers["obstacle"] = _obstacle_band(world, cell_x, cell_y, obstacle_height,
-                                        robot.radius + cfg.inflation_margin)
+    layers["obstacle"] = _obstacle_band(
+        world, cell_x, cell_y, obstacle_height, robot.radius + cfg.inflation_margin
+    )
     margin = robot.radius if cfg.border_margin is None else cfg.border_margin
     gx, gy = np.meshgrid(cell_x, cell_y)
     layers["border"] = ~terrain.contains(gx, gy, margin=margin)

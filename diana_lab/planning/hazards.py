@@ -33,7 +33,7 @@ _DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
 
 @dataclass(frozen=True)
 class HazardLayers:
-    """Per-sample hazards on the terrain grid (``[iy, ix]``): slope in degrees, step and roughness in metres."""
+    """Per-sample hazards on the terrain grid (``[iy, ix]``): slope in degrees, step and roughness in m."""
 
     slope_deg: np.ndarray
     step: np.ndarray
@@ -57,16 +57,19 @@ def terrain_hazards(terrain: Terrain, radius: float) -> HazardLayers:
     """Slope, step and roughness of every terrain sample for a footprint of ``radius`` metres.
 
     The plane fit uses the symmetry of the disc: with offsets centred on the sample, ``sum(x) = sum(y) =
-    sum(xy) = 0``, so the plane ``z = c + a x + b y`` decouples into ``c = mean(z)``, ``a = sum(xz)/sum(x^2)``,
-    ``b = sum(yz)/sum(y^2)``; each is one correlation. The RMS residual follows from the same moments
-    (``mean(z^2) - c^2 - a^2 mean(x^2) - b^2 mean(y^2)``) because the fitted components are orthogonal.
-    Edges are padded by repeating the border samples (``mode="nearest"``); the cost map masks a border band
-    anyway.
+    sum(xy) = 0``, so the plane ``z = c + a x + b y`` decouples into ``c = mean(z)``,
+    ``a = sum(xz)/sum(x^2)``, ``b = sum(yz)/sum(y^2)``; each is one correlation. The RMS residual follows
+    from the same moments (``var(z) - a^2 mean(x^2) - b^2 mean(y^2)``) because the fitted components are
+    orthogonal.
+    Beyond the grid edge the heights are extended by odd reflection (``2 h[0] - h[k]``), which continues
+    the edge slope, so a plane stays a plane up to the edge instead of growing a fake kink.
     """
-    h = terrain.heights
     dx, dy = terrain.dx, terrain.dy
     fp = footprint_mask(radius, dx, dy)
     ky, kx = fp.shape[0] // 2, fp.shape[1] // 2
+    pad = ((ky + 1, ky + 1), (kx + 1, kx + 1))
+    h = np.pad(terrain.heights, pad, mode="reflect", reflect_type="odd")
+    crop = (slice(ky + 1, h.shape[0] - ky - 1), slice(kx + 1, h.shape[1] - kx - 1))
     oy, ox = np.mgrid[-ky : ky + 1, -kx : kx + 1]
     xs, ys = np.where(fp, ox * dx, 0.0), np.where(fp, oy * dy, 0.0)
     n = float(fp.sum())
@@ -88,7 +91,7 @@ def terrain_hazards(terrain: Terrain, radius: float) -> HazardLayers:
         hi = ndi.maximum_filter(diff, footprint=pairs, mode="nearest")
         lo = ndi.minimum_filter(diff, footprint=pairs, mode="nearest")
         step = np.maximum(step, np.maximum(hi - rise, rise - lo))
-    return HazardLayers(slope_deg=slope_deg, step=step, roughness=roughness)
+    return HazardLayers(slope_deg=slope_deg[crop], step=step[crop], roughness=roughness[crop])
 
 
 def _window_variance(h: np.ndarray, weights: np.ndarray) -> np.ndarray:
@@ -117,6 +120,6 @@ def _neighbour_difference(h: np.ndarray, diy: int, dix: int) -> np.ndarray:
     """
     ny, nx = h.shape
     x0, x1 = max(0, -dix), nx - max(0, dix)
-    valid = h[diy : ny, x0 + dix : x1 + dix] - h[0 : ny - diy, x0:x1]
+    valid = h[diy:ny, x0 + dix : x1 + dix] - h[0 : ny - diy, x0:x1]
     pad = ((0, diy), (x0, nx - x1))
     return np.pad(valid, pad, mode="edge")

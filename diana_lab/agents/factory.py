@@ -1,0 +1,69 @@
+"""Build or load an SB3 model from the typed ``algo`` config with ``hydra.utils.instantiate``.
+
+The ``algo`` node names the class (``_target_: stable_baselines3.PPO``) and holds its hyperparameters; the
+keys in :data:`~diana_lab.config.run.NON_SB3_KEYS` are ours (network sizes, VecNormalize, the extractor)
+and become ``policy_kwargs`` and the like here. Instantiating a ``_partial_`` first and then adding the
+run-time objects (env, seed, action noise) keeps the YAML pure data.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from hydra.utils import get_class, instantiate
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.vec_env import VecEnv
+
+from diana_lab.agents.extractors import RoverExtractor
+from diana_lab.config.run import NON_SB3_KEYS, AlgoConfig
+
+__all__ = ["algo_class", "build_model", "load_model", "policy_kwargs"]
+
+
+def policy_kwargs(cfg: AlgoConfig) -> dict[str, Any]:
+    """``MultiInputPolicy`` kwargs: our extractor, the head sizes and any extra ``algo.policy_kwargs``."""
+    ext = cfg.extractor
+    kwargs: dict[str, Any] = {
+        "features_extractor_class": RoverExtractor,
+        "features_extractor_kwargs": {
+            "goal_hidden": list(ext.goal_hidden), "cnn_channels": list(ext.cnn_channels),
+            "cnn_pool": list(ext.cnn_pool), "sensor_features": ext.sensor_features,
+            "elevation_encoder": ext.elevation_encoder, "point_hidden": list(ext.point_hidden),
+        },
+        "net_arch": list(cfg.net_arch),
+        "normalize_images": False,  # depth images are already in [0, 1] (float32, not uint8)
+    }
+    kwargs.update(dict(cfg.policy_kwargs))
+    return kwargs
+
+
+def _action_noise(cfg: AlgoConfig, n_actions: int) -> NormalActionNoise | None:
+    std = float(getattr(cfg, "action_noise_std", 0.0))
+    if std <= 0:
+        return None
+    return NormalActionNoise(mean=np.zeros(n_actions), sigma=std * np.ones(n_actions))
+
+
+def algo_class(cfg: AlgoConfig) -> type[BaseAlgorithm]:
+    return get_class(cfg._target_)
+
+
+def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", verbose: int = 0) -> BaseAlgorithm:
+    """A fresh model of ``cfg``'s class on ``env`` (every non-runner key of ``cfg`` is a constructor kwarg)."""
+    node = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in NON_SB3_KEYS}
+    node.update({"_target_": cfg._target_, "_partial_": True, "_convert_": "all"})
+    make = instantiate(node)
+    extra: dict[str, Any] = {}
+    noise = _action_noise(cfg, int(np.prod(env.action_space.shape)))
+    if noise is not None:
+        extra["action_noise"] = noise
+    return make(env=env, policy_kwargs=policy_kwargs(cfg), seed=seed, device=device, verbose=verbose, **extra)
+
+
+def load_model(cfg: AlgoConfig, path: Path, env: VecEnv | None, device: str = "cpu") -> BaseAlgorithm:
+    """Load a saved model of ``cfg``'s class (its saved hyperparameters win; the env is re-attached)."""
+    return algo_class(cfg).load(str(path), env=env, device=device)

@@ -1,0 +1,267 @@
+"""Config schemas of an experiment run: ``algo`` (one per RL algorithm), ``train`` and ``tracking``.
+
+Each ``conf/algo/<name>.yaml`` extends the schema of its algorithm, so a misspelt hyperparameter
+(``algo.n_step=...``) is rejected by Hydra at composition time. ``_target_`` names the Stable-Baselines3
+class; every field that is not in :data:`NON_SB3_KEYS` is passed to its constructor as a keyword argument
+(see :mod:`diana_lab.agents.factory`), so adding a hyperparameter is one line here and one in the YAML.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from omegaconf import MISSING
+
+from diana_lab.config.store import register
+from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, positive
+
+VEC_ENVS = ("dummy", "subproc")
+ELEVATION_ENCODERS = ("cnn", "mlp")
+
+# algo keys that configure the runner / policy rather than being constructor arguments of the SB3 class
+NON_SB3_KEYS = frozenset({"_target_", "name", "net_arch", "normalize", "norm_obs_keys", "norm_reward",
+                          "extractor", "policy_kwargs", "action_noise_std"})
+
+
+def _positive_int(key: str, value: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ConfigError(f"{key}: expected a positive integer, got {value!r}")
+
+
+def _non_negative_int(key: str, value: int) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ConfigError(f"{key}: expected an integer >= 0, got {value!r}")
+
+
+def _layers(key: str, value: list[int]) -> None:
+    for i, v in enumerate(value):
+        _positive_int(f"{key}[{i}]", v)
+
+
+# ----------------------------------------------------------------------------------------------- algo
+
+
+@dataclass
+class ExtractorConfig:
+    """The features extractor of :mod:`diana_lab.agents.extractors`: one encoder per observation key.
+
+    Every sensor encoder ends in ``sensor_features`` units, the goal MLP in ``goal_hidden[-1]``; the
+    policy and value heads (``algo.net_arch``) see their concatenation.
+    """
+
+    goal_hidden: list[int] = field(default_factory=lambda: [64, 64])
+    cnn_channels: list[int] = field(default_factory=lambda: [16, 32, 32])  # depth image / elevation map CNN
+    cnn_pool: list[int] = field(default_factory=lambda: [3, 4])  # adaptive pooling grid (rows, cols) after it
+    sensor_features: int = 128
+    elevation_encoder: str = "cnn"  # cnn | mlp
+    point_hidden: list[int] = field(default_factory=lambda: [64, 128])  # PointNet shared per-point MLP
+
+    def __post_init__(self) -> None:
+        _layers("algo.extractor.goal_hidden", self.goal_hidden)
+        _layers("algo.extractor.cnn_channels", self.cnn_channels)
+        _layers("algo.extractor.point_hidden", self.point_hidden)
+        _layers("algo.extractor.cnn_pool", self.cnn_pool)
+        if not self.goal_hidden or not self.cnn_channels or not self.point_hidden or len(self.cnn_pool) != 2:
+            raise ConfigError("algo.extractor: goal_hidden, cnn_channels and point_hidden need at least one "
+                              "layer each, cnn_pool exactly two numbers")
+        _positive_int("algo.extractor.sensor_features", self.sensor_features)
+        one_of("algo.extractor.elevation_encoder", self.elevation_encoder, ELEVATION_ENCODERS)
+
+
+@dataclass
+class AlgoConfig:
+    """Keys common to every algorithm. ``net_arch`` sizes the policy/value (or actor/critic) MLP heads."""
+
+    _target_: str = MISSING
+    name: str = MISSING
+    policy: str = "MultiInputPolicy"
+    learning_rate: float = 3e-4
+    gamma: float = 0.99
+    net_arch: list[int] = field(default_factory=lambda: [64, 64])
+    normalize: bool = False  # VecNormalize (saved as vecnormalize.pkl next to every model)
+    norm_obs_keys: list[str] = field(default_factory=lambda: ["goal"])  # images and point masks stay raw
+    norm_reward: bool = True
+    extractor: ExtractorConfig = field(default_factory=ExtractorConfig)
+    policy_kwargs: dict[str, Any] = field(default_factory=dict)  # extra policy kwargs (e.g. TQC n_quantiles)
+
+    def __post_init__(self) -> None:
+        positive("algo.learning_rate", self.learning_rate)
+        in_range("algo.gamma", self.gamma, 0.0, 1.0)
+        _layers("algo.net_arch", self.net_arch)
+
+    @property
+    def off_policy(self) -> bool:
+        return False
+
+
+@dataclass
+class OnPolicyConfig(AlgoConfig):
+    n_steps: int = 256  # per env and update
+    gae_lambda: float = 0.95
+    ent_coef: float = 0.0
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive_int("algo.n_steps", self.n_steps)
+        in_range("algo.gae_lambda", self.gae_lambda, 0.0, 1.0)
+        non_negative("algo.ent_coef", self.ent_coef)
+        non_negative("algo.vf_coef", self.vf_coef)
+        positive("algo.max_grad_norm", self.max_grad_norm)
+
+
+@dataclass
+class PPOConfig(OnPolicyConfig):
+    _target_: str = "stable_baselines3.PPO"
+    name: str = "ppo"
+    batch_size: int = 64
+    n_epochs: int = 10
+    clip_range: float = 0.2
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive_int("algo.batch_size", self.batch_size)
+        _positive_int("algo.n_epochs", self.n_epochs)
+        positive("algo.clip_range", self.clip_range)
+
+
+@dataclass
+class A2CConfig(OnPolicyConfig):
+    _target_: str = "stable_baselines3.A2C"
+    name: str = "a2c"
+    n_steps: int = 16
+    learning_rate: float = 7e-4
+    gae_lambda: float = 1.0
+    use_rms_prop: bool = True
+    normalize_advantage: bool = False
+
+
+@dataclass
+class OffPolicyConfig(AlgoConfig):
+    """Replay-buffer algorithms. The buffer holds every observation twice in float32: with a 64 x 48 depth
+    image that is ~25 kB per transition, so the default is 20 000 transitions (~0.5 GB)."""
+
+    buffer_size: int = 20_000
+    learning_starts: int = 1000
+    batch_size: int = 256
+    tau: float = 0.005
+    train_freq: int = 1
+    gradient_steps: int = 1
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive_int("algo.buffer_size", self.buffer_size)
+        _non_negative_int("algo.learning_starts", self.learning_starts)
+        _positive_int("algo.batch_size", self.batch_size)
+        in_range("algo.tau", self.tau, 0.0, 1.0)
+        _positive_int("algo.train_freq", self.train_freq)
+        if isinstance(self.gradient_steps, bool) or not isinstance(self.gradient_steps, int) or (
+                self.gradient_steps == 0 or self.gradient_steps < -1):
+            raise ConfigError(f"algo.gradient_steps: expected a positive integer or -1, got {self.gradient_steps!r}")
+
+    @property
+    def off_policy(self) -> bool:
+        return True
+
+
+@dataclass
+class SACConfig(OffPolicyConfig):
+    _target_: str = "stable_baselines3.SAC"
+    name: str = "sac"
+    ent_coef: Any = "auto"  # "auto", "auto_<init>" or a number
+
+
+@dataclass
+class TQCConfig(SACConfig):
+    _target_: str = "sb3_contrib.TQC"
+    name: str = "tqc"
+    top_quantiles_to_drop_per_net: int = 2
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _non_negative_int("algo.top_quantiles_to_drop_per_net", self.top_quantiles_to_drop_per_net)
+
+
+@dataclass
+class DDPGConfig(OffPolicyConfig):
+    _target_: str = "stable_baselines3.DDPG"
+    name: str = "ddpg"
+    learning_rate: float = 1e-3
+    action_noise_std: float = 0.1  # Gaussian exploration noise on the [-1, 1] actions; 0 turns it off
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        non_negative("algo.action_noise_std", self.action_noise_std)
+
+
+@dataclass
+class TD3Config(DDPGConfig):
+    _target_: str = "stable_baselines3.TD3"
+    name: str = "td3"
+    policy_delay: int = 2
+    target_policy_noise: float = 0.2
+    target_noise_clip: float = 0.5
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        _positive_int("algo.policy_delay", self.policy_delay)
+        non_negative("algo.target_policy_noise", self.target_policy_noise)
+        non_negative("algo.target_noise_clip", self.target_noise_clip)
+
+
+# ----------------------------------------------------------------------------------------------- train
+
+
+@dataclass
+class TrainConfig:
+    """How long and how parallel to train, and when to checkpoint."""
+
+    total_timesteps: int = 200_000  # the target step count (a resumed run trains up to it)
+    n_envs: int = 4
+    vec_env: str = "dummy"  # dummy (one process) | subproc (one process per env)
+    checkpoint_every: int = 20_000  # env steps between checkpoints; 0: only at the end and on interrupt
+    resume: str | None = None  # an MLflow run id, a Hydra run dir or a checkpoint .zip
+    log_interval: int = 1  # SB3 logger dumps: every N updates (on-policy) or N episodes (off-policy)
+    progress_bar: bool = True
+    final_eval: bool = True  # evaluate the final model on eval.episodes episodes (episodes.csv, plots, GIF)
+    device: str = "cpu"
+    torch_threads: int = 0  # 0: torch's default
+
+    def __post_init__(self) -> None:
+        _positive_int("train.total_timesteps", self.total_timesteps)
+        _positive_int("train.n_envs", self.n_envs)
+        one_of("train.vec_env", self.vec_env, VEC_ENVS)
+        _non_negative_int("train.checkpoint_every", self.checkpoint_every)
+        _positive_int("train.log_interval", self.log_interval)
+        _non_negative_int("train.torch_threads", self.torch_threads)
+        if self.resume is not None and not str(self.resume).strip():
+            raise ConfigError("train.resume: expected an MLflow run id or a path, got an empty string")
+
+
+# ----------------------------------------------------------------------------------------------- tracking
+
+
+@dataclass
+class TrackingConfig:
+    """MLflow tracking. The default store is an SQLite file in the working directory: no server needed."""
+
+    enabled: bool = True
+    uri: str = "sqlite:///mlflow.db"
+    experiment: str = "diana_lab"
+    run_name: str | None = None  # default: <algo>-<world>-<sensor>-s<seed>
+    log_checkpoints: bool = True  # upload every checkpoint (model + vecnormalize) as an artefact
+    log_replay_buffer: bool = False  # replay buffers are large: they stay in the Hydra run dir unless true
+
+    def __post_init__(self) -> None:
+        if not self.uri.strip():
+            raise ConfigError("tracking.uri: expected an MLflow tracking URI such as sqlite:///mlflow.db")
+        if not self.experiment.strip():
+            raise ConfigError("tracking.experiment: expected a non-empty experiment name")
+
+
+register("algo", {"ppo": PPOConfig, "a2c": A2CConfig, "sac": SACConfig, "tqc": TQCConfig, "ddpg": DDPGConfig,
+                  "td3": TD3Config})
+register("train", {"train": TrainConfig})
+register("tracking", {"tracking": TrackingConfig})

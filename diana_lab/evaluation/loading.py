@@ -1,0 +1,222 @@
+"""Resolve ``policy=`` of ``python -m diana_lab.evaluate`` into a :class:`Policy`, and check it fits the env.
+
+Accepted values:
+
+* ``straight`` / ``astar`` -- the classical baselines;
+* a path to a Stable-Baselines3 ``.zip`` (or a folder holding ``model.zip``); a ``vecnormalize.pkl`` beside
+  it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
+* an MLflow run id (32 hex digits) of a training run, whose artefacts ``model/model.zip``,
+  ``model/vecnormalize.pkl`` and ``.hydra/config.yaml`` are downloaded (the layout the runner logs);
+* ``pretrained`` -- the reference policy shipped in ``diana_lab/assets/policies/reference/``.
+
+A model whose observation space differs from the env's (another sensor, encoding or resolution) is refused
+with a message naming the key and both shapes, and -- when the training config is known -- the config keys
+that differ, since running it would only produce a shape error deep inside torch.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from gymnasium import spaces
+from omegaconf import DictConfig, OmegaConf
+
+from diana_lab.cli import UserError
+from diana_lab.config import ConfigError
+from diana_lab.evaluation.policies import AStarOracle, Policy, SB3Policy, StraightLine
+
+__all__ = ["PRETRAINED_DIR", "LoadedPolicy", "check_observation_space", "load_policy", "load_sb3"]
+
+PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "assets" / "policies" / "reference"
+RUN_ID = re.compile(r"^[0-9a-f]{32}$")
+MODEL_ARTIFACT, VECNORM_ARTIFACT, CONFIG_ARTIFACT = "model/model.zip", "model/vecnormalize.pkl", ".hydra/config.yaml"
+
+# the module of a saved policy class -> the algorithm that loads it (on-policy actor-critics load as PPO:
+# A2C and PPO share the policy and ``predict``)
+ALGOS_BY_MODULE = {
+    "stable_baselines3.sac": ("stable_baselines3", "SAC"),
+    "stable_baselines3.td3": ("stable_baselines3", "TD3"),
+    "stable_baselines3.ddpg": ("stable_baselines3", "TD3"),
+    "stable_baselines3.dqn": ("stable_baselines3", "DQN"),
+    "sb3_contrib.tqc": ("sb3_contrib", "TQC"),
+    "sb3_contrib.common.recurrent": ("sb3_contrib", "RecurrentPPO"),
+    "sb3_contrib.ppo_recurrent": ("sb3_contrib", "RecurrentPPO"),
+    "sb3_contrib.trpo": ("sb3_contrib", "TRPO"),
+    "sb3_contrib.ars": ("sb3_contrib", "ARS"),
+}
+ALGOS_BY_NAME = {"ppo": ("stable_baselines3", "PPO"), "a2c": ("stable_baselines3", "A2C"),
+                 "sac": ("stable_baselines3", "SAC"), "td3": ("stable_baselines3", "TD3"),
+                 "ddpg": ("stable_baselines3", "DDPG"), "tqc": ("sb3_contrib", "TQC"),
+                 "trpo": ("sb3_contrib", "TRPO"), "recurrent_ppo": ("sb3_contrib", "RecurrentPPO"),
+                 "recurrentppo": ("sb3_contrib", "RecurrentPPO"), "ppo_lstm": ("sb3_contrib", "RecurrentPPO")}
+
+
+@dataclass
+class LoadedPolicy:
+    """A policy plus where it came from (for messages, MLflow tags and the training config)."""
+
+    policy: Policy
+    label: str  # "straight", "astar", the model path or "run <id>"
+    run_id: str | None = None  # the MLflow training run, when the policy came from one
+    train_cfg: DictConfig | None = None  # the training's resolved config, when known
+    model: Any = None  # the SB3 model, when there is one
+
+
+def _train_config(path: Path | None) -> DictConfig | None:
+    return OmegaConf.load(path) if path is not None and path.is_file() else None
+
+
+def _algo_class(model_zip: Path, train_cfg: DictConfig | None) -> type:
+    """The SB3 algorithm class for a saved model: from the training config's ``algo`` when known, else from
+    the module of the policy class recorded in the zip's ``data``."""
+    import importlib
+
+    name = OmegaConf.select(train_cfg, "algo.name", default=None) if train_cfg is not None else None
+    if isinstance(name, str) and name.lower() in ALGOS_BY_NAME:
+        package, cls = ALGOS_BY_NAME[name.lower()]
+        return getattr(importlib.import_module(package), cls)
+    try:
+        with zipfile.ZipFile(model_zip) as zf:
+            data = json.loads(zf.read("data"))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+        raise UserError(f"policy: '{model_zip}' is not a Stable-Baselines3 model archive ({exc})") from exc
+    module = str(data.get("policy_class", {}).get("__module__", ""))
+    package, cls = next((v for k, v in ALGOS_BY_MODULE.items() if module.startswith(k)), ("stable_baselines3", "PPO"))
+    return getattr(importlib.import_module(package), cls)
+
+
+def load_sb3(model_zip: Path, vecnorm: Path | None = None, train_cfg: DictConfig | None = None,
+             deterministic: bool = True, seed: int = 0) -> tuple[SB3Policy, Any]:
+    """Load a saved SB3 model (and its VecNormalize statistics) as an :class:`SB3Policy`."""
+    import pickle
+
+    algo = _algo_class(model_zip, train_cfg)
+    try:
+        model = algo.load(str(model_zip), device="cpu")
+    except Exception as exc:
+        raise UserError(f"policy: could not load '{model_zip}' as a {algo.__name__} model ({exc})") from exc
+    vn = None
+    if vecnorm is not None and vecnorm.is_file():
+        with open(vecnorm, "rb") as f:
+            vn = pickle.load(f)  # VecNormalize without its venv: only its statistics are needed
+        vn.training = False
+    return SB3Policy(model, vn, deterministic=deterministic, seed=seed), model
+
+
+def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: str | None = None) -> LoadedPolicy:
+    cfg_path = next((p for p in (model_zip.parent / CONFIG_ARTIFACT, model_zip.parent.parent / CONFIG_ARTIFACT,
+                                 root / CONFIG_ARTIFACT) if p.is_file()), None)
+    train_cfg = _train_config(cfg_path)
+    policy, model = load_sb3(model_zip, model_zip.parent / "vecnormalize.pkl", train_cfg,
+                             deterministic=eval_cfg.deterministic, seed=eval_cfg.seed)
+    return LoadedPolicy(policy, label, run_id, train_cfg, model)
+
+
+def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
+    import mlflow
+    from mlflow.exceptions import MlflowException
+
+    uri = OmegaConf.select(cfg, "tracking.uri", default=None)
+    if uri:
+        mlflow.set_tracking_uri(str(uri))
+    dst = Path(tempfile.mkdtemp(prefix=f"diana_eval_{run_id[:8]}_"))
+    try:
+        model_zip = Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=MODEL_ARTIFACT,
+                                                             dst_path=str(dst)))
+    except (MlflowException, OSError) as exc:
+        raise UserError(f"policy={run_id}: could not fetch the artefact '{MODEL_ARTIFACT}' of MLflow run {run_id} "
+                        f"from tracking URI '{mlflow.get_tracking_uri()}' ({str(exc).splitlines()[0]}); check "
+                        "tracking.uri and that the run finished training") from exc
+    for extra in (VECNORM_ARTIFACT, CONFIG_ARTIFACT):
+        try:
+            mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=extra, dst_path=str(dst))
+        except (MlflowException, OSError):
+            pass  # optional: a run without VecNormalize, or logged before the config was
+    return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
+
+
+def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
+    """The policy named by ``spec`` (see the module docstring); user mistakes raise :class:`UserError`."""
+    spec = str(spec).strip()
+    if spec == "straight":
+        return LoadedPolicy(StraightLine(), "straight")
+    if spec == "astar":
+        return LoadedPolicy(AStarOracle(), "astar")
+    if spec == "pretrained":
+        model_zip = PRETRAINED_DIR / "model.zip"
+        if not model_zip.is_file():
+            raise UserError(f"policy=pretrained: the reference policy is not shipped yet (expected '{model_zip}'). "
+                            "Use policy=straight or policy=astar, a model file (policy=path/to/model.zip) or the "
+                            "MLflow run id of a training run.")
+        return _from_dir(PRETRAINED_DIR, model_zip, eval_cfg, "pretrained")
+    path = Path(spec).expanduser()
+    if path.is_dir():
+        path = path / "model.zip" if (path / "model.zip").is_file() else path / MODEL_ARTIFACT
+    if path.is_file():
+        return _from_dir(path.parent, path.resolve(), eval_cfg, str(path))
+    if RUN_ID.match(spec):
+        return _from_run(spec, cfg, eval_cfg)
+    raise UserError(f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected 'straight', "
+                    "'astar', 'pretrained', the path of a Stable-Baselines3 .zip (with vecnormalize.pkl beside "
+                    "it if the run normalised observations) or an MLflow run id (32 hex digits).")
+
+
+# ---------------------------------------------------------------------------------------------- space check
+
+
+def _shapes(space: spaces.Space) -> dict[str, tuple[tuple[int, ...], str]]:
+    if isinstance(space, spaces.Dict):
+        return {k: (tuple(s.shape or ()), str(s.dtype)) for k, s in space.spaces.items()}
+    return {"<observation>": (tuple(space.shape or ()), str(space.dtype))}
+
+
+def _flat(node: Any, prefix: str = "") -> dict[str, Any]:
+    if not isinstance(node, dict):
+        return {prefix: node}
+    out: dict[str, Any] = {}
+    for k, v in node.items():
+        out.update(_flat(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
+def config_differences(train_cfg: DictConfig | None, eval_cfg: DictConfig | None,
+                       groups: tuple[str, ...] = ("sensor", "world", "episode")) -> list[str]:
+    """``group.key: training X, here Y`` for the config keys that shape observations (when both are known)."""
+    if train_cfg is None or eval_cfg is None:
+        return []
+    diffs = []
+    for g in groups:
+        a = _flat(OmegaConf.to_container(train_cfg[g], resolve=True)) if g in train_cfg else {}
+        b = _flat(OmegaConf.to_container(eval_cfg[g], resolve=True)) if g in eval_cfg else {}
+        for k in sorted(set(a) | set(b)):
+            if a.get(k) != b.get(k):
+                diffs.append(f"{g}.{k}: training {a.get(k)!r}, here {b.get(k)!r}")
+    return diffs
+
+
+def check_observation_space(model_space: spaces.Space, env_space: spaces.Space, label: str,
+                            hints: list[str] | None = None) -> None:
+    """Refuse a policy trained on other observations (keys, shapes, dtypes); bounds may differ (goal distance
+    bounds follow the world size, and the policy only ever sees the clipped values)."""
+    want, have = _shapes(model_space), _shapes(env_space)
+    problems = []
+    for k in sorted(set(want) | set(have)):
+        if k not in have:
+            problems.append(f"the policy expects observation key '{k}' {want[k][0]}, which this env does not give")
+        elif k not in want:
+            problems.append(f"this env gives observation key '{k}' {have[k][0]}, which the policy was not trained on")
+        elif want[k] != have[k]:
+            problems.append(f"observation '{k}' is {want[k][0]} {want[k][1]} for the policy but {have[k][0]} "
+                            f"{have[k][1]} here")
+    if problems:
+        hint = f" Differing config keys: {'; '.join(hints[:8])}." if hints else (
+            " Evaluate with the sensor settings the policy was trained with (sensor=..., sensor.encoding=..., "
+            "sensor.width/height).")
+        raise ConfigError(f"policy {label}: trained with other observation settings than this evaluation: "
+                          f"{'; '.join(problems)}.{hint}")

@@ -1,0 +1,145 @@
+"""Per-suite summary statistics with 95 % confidence intervals.
+
+* Rates (success, collision, ...): Wilson score interval -- unlike the normal approximation it stays inside
+  [0, 1] and is sensible at 0 % and 100 %, which is where good and bad policies live.
+* Means (SPL, path length, speed, ...): Student-t interval over the episodes.
+* ``time_over_15deg_frac`` is a ratio of sums (time over 15 degrees / total time); its interval uses the
+  delta method (linearised ratio estimator), so nothing here is random and the summary is reproducible.
+
+Undefined values (a mean over no successful episode) are NaN here and ``null`` in JSON (:func:`to_json`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+__all__ = ["SUMMARY_KEYS", "mean_ci", "ratio_ci", "spl", "summarize", "to_json", "wilson"]
+
+Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
+
+# the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``
+SUMMARY_KEYS = (
+    "episodes", "success_rate", "spl", "collision_rate", "tipover_rate", "timeout_rate", "stuck_rate",
+    "mean_path_length_m", "mean_sim_time_s", "mean_speed_mps", "mean_max_tilt_deg", "time_over_15deg_frac",
+    "mean_waypoints", "min_speed_mps",
+)
+RATE_OUTCOMES = {"collision_rate": "collision", "tipover_rate": "tipover", "timeout_rate": "timeout",
+                 "stuck_rate": "stuck"}
+
+
+def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion; ``(nan, nan)`` without trials."""
+    if n <= 0:
+        return math.nan, math.nan
+    p = successes / n
+    denom = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return max(0.0, centre - half), min(1.0, centre + half)
+
+
+def mean_ci(values: np.ndarray) -> tuple[float, tuple[float, float]]:
+    """Mean and its Student-t 95 % interval (NaNs ignored; the interval is NaN below two values)."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return math.nan, (math.nan, math.nan)
+    mean = float(v.mean())
+    if v.size < 2:
+        return mean, (math.nan, math.nan)
+    half = float(stats.t.ppf(0.975, v.size - 1) * v.std(ddof=1) / math.sqrt(v.size))
+    return mean, (mean - half, mean + half)
+
+
+def ratio_ci(num: np.ndarray, den: np.ndarray) -> tuple[float, tuple[float, float]]:
+    """``sum(num) / sum(den)`` with a delta-method 95 % interval (clipped to [0, 1]: it is a fraction)."""
+    a, b = np.asarray(num, dtype=np.float64), np.asarray(den, dtype=np.float64)
+    if a.size == 0 or b.sum() <= 0:
+        return math.nan, (math.nan, math.nan)
+    r = float(a.sum() / b.sum())
+    if a.size < 2:
+        return r, (math.nan, math.nan)
+    resid = a - r * b
+    se = float(np.sqrt(resid.var(ddof=1) / a.size) / b.mean())
+    half = float(stats.t.ppf(0.975, a.size - 1)) * se
+    return r, (max(0.0, r - half), min(1.0, r + half))
+
+
+def spl(success: np.ndarray, shortest: np.ndarray, driven: np.ndarray) -> np.ndarray:
+    """Per-episode SPL term ``S_i * l_i / max(p_i, l_i)`` (Anderson et al. 2018); its mean is the suite's SPL.
+
+    ``l_i`` is the planner's shortest traversable path, ``p_i`` the driven length. Failed episodes score 0;
+    an episode without a finite shortest path (cannot happen for sampled suites) scores 0 as well.
+    """
+    s = np.asarray(success, dtype=bool)
+    short = np.asarray(shortest, dtype=np.float64)
+    p = np.asarray(driven, dtype=np.float64)
+    ok = s & np.isfinite(short) & (short > 0)
+    out = np.zeros(s.shape)
+    out[ok] = short[ok] / np.maximum(p[ok], short[ok])
+    return out
+
+
+def summarize(df: pd.DataFrame) -> dict[str, Any]:
+    """The suite's summary from :func:`~diana_lab.evaluation.runner.run_suite`'s rows (see SUMMARY_KEYS)."""
+    n = len(df)
+    success = df["success"].to_numpy(dtype=bool)
+    out: dict[str, Any] = {"episodes": int(n)}
+
+    def rate(key: str, hits: np.ndarray) -> None:
+        k = int(np.count_nonzero(hits))
+        out[key] = k / n if n else math.nan
+        out[f"{key}_ci95"] = list(wilson(k, n))
+
+    def mean(key: str, values: np.ndarray) -> None:
+        m, ci = mean_ci(values)
+        out[key], out[f"{key}_ci95"] = m, list(ci)
+
+    rate("success_rate", success)
+    mean("spl", spl(success, df["shortest_path_m"].to_numpy(), df["path_length_m"].to_numpy()) if n else [])
+    outcome = df["outcome"].to_numpy(dtype=object)
+    for key, name in RATE_OUTCOMES.items():
+        rate(key, outcome == name)
+    mean("mean_path_length_m", df["path_length_m"].to_numpy())
+    mean("mean_sim_time_s", df["sim_time_s"].to_numpy())
+    speeds = df["speed_mps"].to_numpy(dtype=np.float64)[success]
+    mean("mean_speed_mps", speeds)
+    mean("mean_max_tilt_deg", df["max_tilt_deg"].to_numpy())
+    frac, ci = ratio_ci(df["time_over_15deg_s"].to_numpy(), df["sim_time_s"].to_numpy())
+    out["time_over_15deg_frac"], out["time_over_15deg_frac_ci95"] = frac, list(ci)
+    mean("mean_waypoints", df["steps"].to_numpy())
+    finite = speeds[np.isfinite(speeds)]
+    out["min_speed_mps"] = float(finite.min()) if finite.size else math.nan
+    return {k: _plain(v) for k, v in out.items()}
+
+
+def _plain(v: Any) -> Any:
+    """Python floats/ints/lists (no numpy scalars), so that the summary serialises the same everywhere."""
+    if isinstance(v, list | tuple):
+        return [_plain(x) for x in v]
+    if isinstance(v, bool | np.bool_):
+        return bool(v)
+    if isinstance(v, int | np.integer):
+        return int(v)
+    return float(v)
+
+
+def _nan_to_none(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {k: _nan_to_none(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_nan_to_none(x) for x in v]
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    return v
+
+
+def to_json(summary: dict[str, Any]) -> str:
+    """Strict JSON (NaN and inf become ``null``), stable key order, newline-terminated."""
+    return json.dumps(_nan_to_none(summary), indent=2, allow_nan=False) + "\n"

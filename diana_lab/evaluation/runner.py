@@ -1,0 +1,116 @@
+"""Run a policy over a suite: one row per episode, plus the driven traces for plots and videos.
+
+Each episode is reset with the suite's start, heading, goal and seed, so every policy meets the same episodes
+and the same noise. The shortest path for SPL is the planner's geodesic over the traversable grid
+(:func:`diana_lab.planning.shortest_path_length`), computed on the cost map the episodes were sampled from.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+
+from diana_lab.evaluation.policies import Policy
+from diana_lab.evaluation.suite import EpisodeSpec
+from diana_lab.planning import shortest_path_length
+
+__all__ = ["COLUMNS", "EpisodeTrace", "run_episodes", "run_suite"]
+
+COLUMNS = (
+    "episode", "start_x", "start_y", "start_yaw", "goal_x", "goal_y", "outcome", "success", "steps",
+    "path_length_m", "sim_time_s", "straight_distance_m", "shortest_path_m", "spl", "speed_mps",
+    "max_tilt_deg", "time_over_15deg_s", "final_distance_m", "return",
+)
+
+
+@dataclass
+class EpisodeTrace:
+    """The driven path of one episode: ``xy (K, 2)`` and ``tilt_deg (K,)``, and the waypoints sent."""
+
+    xy: np.ndarray
+    tilt_deg: np.ndarray
+    waypoints: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+
+    @property
+    def distance(self) -> np.ndarray:
+        """Cumulative distance (m) along the path at every sample."""
+        steps = np.hypot(*np.diff(self.xy, axis=0).T) if len(self.xy) > 1 else np.zeros(0)
+        return np.concatenate([[0.0], np.cumsum(steps)])
+
+
+def _episode(policy: Policy, env: gym.Env, spec: EpisodeSpec, index: int, frames: list | None,
+             frame_fn=None) -> tuple[dict, EpisodeTrace]:
+    base = env.unwrapped
+    obs, info = env.reset(seed=spec.seed, options=spec.reset_options())
+    policy.reset(env)
+    xy, tilt, wps = [np.asarray(info["position"][:2], dtype=np.float64)], [float(info["tilt_deg"])], []
+    if frames is not None:
+        frames.append(frame_fn(obs))
+    total, done, limit = 0.0, False, base.episode_cfg.max_steps + 10
+    while not done:
+        action = policy.act(obs, env)
+        obs, reward, terminated, truncated, info = env.step(action)
+        total += float(reward)
+        done = terminated or truncated or info["steps"] >= limit
+        xy.extend(np.asarray(info["trace_xy"])[1:])
+        tilt.extend(np.asarray(info["trace_tilt_deg"])[1:])
+        wps.append(np.asarray(info["waypoint"], dtype=np.float64))
+        if frames is not None:
+            frames.append(frame_fn(obs))
+    outcome = str(info.get("outcome", "timeout"))
+    success = outcome == "success"
+    straight = float(math.dist(spec.start, spec.goal))
+    shortest = shortest_path_length(base.sampler.costmap, spec.start, spec.goal)
+    path, sim_time = float(info["path_length"]), float(info["sim_time"])
+    row = {
+        "episode": index, "start_x": float(spec.start[0]), "start_y": float(spec.start[1]),
+        "start_yaw": float(spec.yaw), "goal_x": float(spec.goal[0]), "goal_y": float(spec.goal[1]),
+        "outcome": outcome, "success": success, "steps": int(info["steps"]), "path_length_m": path,
+        "sim_time_s": sim_time, "straight_distance_m": straight, "shortest_path_m": float(shortest),
+        "spl": (shortest / max(path, shortest)) if success and math.isfinite(shortest) and shortest > 0 else 0.0,
+        "speed_mps": straight / sim_time if success and sim_time > 0 else math.nan,
+        "max_tilt_deg": float(info["max_tilt_deg"]), "time_over_15deg_s": float(info["time_over_15deg_s"]),
+        "final_distance_m": float(info["distance_to_goal"]), "return": total,
+    }
+    trace = EpisodeTrace(np.asarray(xy), np.asarray(tilt), np.asarray(wps).reshape(-1, 2))
+    return row, trace
+
+
+def run_episodes(policy: Policy, env: gym.Env, suite: list[EpisodeSpec],
+                 video_path: Path | str | None = None) -> tuple[pd.DataFrame, list[EpisodeTrace]]:
+    """Like :func:`run_suite`, also returning every episode's trace (for plots)."""
+    rows, traces = [], []
+    frames: list | None = None
+    for i, spec in enumerate(suite):
+        frame_fn = None
+        if video_path is not None and i == 0:
+            from diana_lab.evaluation.video import FrameMaker
+
+            maker = FrameMaker(env)
+            frames, frame_fn = [], maker.frame
+        row, trace = _episode(policy, env, spec, i, frames if i == 0 else None, frame_fn)
+        rows.append(row)
+        traces.append(trace)
+        if frames is not None and i == 0:
+            from diana_lab.evaluation.video import write_gif
+
+            write_gif(Path(video_path), frames)
+            maker.close()
+            frames = None
+    return pd.DataFrame(rows, columns=list(COLUMNS)), traces
+
+
+def run_suite(policy: Policy, env: gym.Env, suite: list[EpisodeSpec],
+              video_path: Path | str | None = None) -> pd.DataFrame:
+    """Run ``policy`` on every episode of ``suite``; one row per episode (columns: :data:`COLUMNS`).
+
+    ``video_path``: write a GIF of the first episode there. ``path_length_m`` is the driven length,
+    ``shortest_path_m`` the planner's geodesic, ``speed_mps`` the goal-directed speed (straight start-goal
+    distance over simulated time; NaN unless the episode succeeded), ``spl`` the episode's SPL term.
+    """
+    return run_episodes(policy, env, suite, video_path)[0]

@@ -1,0 +1,77 @@
+"""MLflow logging of an evaluation: ``eval_<key>`` metrics and the output files as artefacts.
+
+Used by ``python -m diana_lab.evaluate`` when ``tracking.enabled`` is true: a policy from a training run is
+logged as a child run of it (tag ``mlflow.parentRunId``, in the parent's experiment), any other policy as a
+run of its own in ``tracking.experiment``. :func:`log_summary` logs into the active run, so the training
+runner can use it for its own evaluations too.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+__all__ = ["log_evaluation", "log_summary", "metrics_of", "tracking_settings"]
+
+DEFAULT_EXPERIMENT = "diana_lab"
+
+
+def tracking_settings(cfg: DictConfig) -> tuple[bool, str | None, str]:
+    """``(enabled, uri, experiment)`` from ``tracking.*`` (defaults when the keys are not in the config)."""
+    enabled = bool(OmegaConf.select(cfg, "tracking.enabled", default=False))
+    uri = OmegaConf.select(cfg, "tracking.uri", default=None)
+    experiment = OmegaConf.select(cfg, "tracking.experiment", default=None) or DEFAULT_EXPERIMENT
+    return enabled, (str(uri) if uri else None), str(experiment)
+
+
+def metrics_of(summary: dict[str, Any], prefix: str = "eval_") -> dict[str, float]:
+    """Finite numbers of a summary as metrics; ``<key>_ci95`` becomes ``<key>_ci95_lo`` / ``_hi``."""
+    out: dict[str, float] = {}
+    for key, value in summary.items():
+        if isinstance(value, list | tuple) and len(value) == 2:
+            for bound, v in zip(("lo", "hi"), value):
+                if isinstance(v, int | float) and math.isfinite(v):
+                    out[f"{prefix}{key}_{bound}"] = float(v)
+        elif isinstance(value, int | float) and math.isfinite(value):
+            out[f"{prefix}{key}"] = float(value)
+    return out
+
+
+def log_summary(summary: dict[str, Any], prefix: str = "eval_", step: int | None = None) -> None:
+    """Log a summary's metrics into the active MLflow run."""
+    import mlflow
+
+    mlflow.log_metrics(metrics_of(summary, prefix), step=step)
+
+
+def log_evaluation(cfg: DictConfig, summaries: dict[str, dict[str, Any]], out_dir: Path,
+                   params: dict[str, Any], parent_run_id: str | None = None) -> str:
+    """Log an evaluation run (metrics of every summary, every file of ``out_dir``); returns its run id.
+
+    ``summaries`` maps a metric prefix (``eval_``, or ``eval_noise_0.5_`` in a sweep) to its summary.
+    """
+    import mlflow
+
+    _, uri, experiment = tracking_settings(cfg)
+    if uri:
+        mlflow.set_tracking_uri(uri)
+    if parent_run_id is not None:
+        experiment_id = mlflow.tracking.MlflowClient().get_run(parent_run_id).info.experiment_id
+        run = mlflow.start_run(experiment_id=experiment_id, parent_run_id=parent_run_id,
+                               run_name=f"eval {params.get('policy', '')}".strip())
+    else:
+        mlflow.set_experiment(experiment)
+        run = mlflow.start_run(run_name=f"eval {params.get('policy', '')}".strip())
+    with run:
+        mlflow.set_tag("diana_lab.kind", "evaluation")
+        mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
+        for prefix, summary in summaries.items():
+            log_summary(summary, prefix)
+        for path in sorted(Path(out_dir).rglob("*")):
+            if path.is_file() and path.suffix in (".csv", ".json", ".png", ".gif", ".yaml"):
+                rel = path.parent.relative_to(out_dir)
+                mlflow.log_artifact(str(path), artifact_path=None if str(rel) == "." else str(rel))
+        return run.info.run_id

@@ -1,0 +1,100 @@
+"""The ray-cast range sensor the env uses: a fixed ray pattern on a mount, noise, and an encoder.
+
+Subclasses only say where their rays point (:meth:`RaySensor.pattern`); everything else (pose transform,
+casting, range limits, noise, encoding, pickling) is shared. The env's calls:
+
+    sensor = diana_lab.config.build(cfg.sensor, world)     # DepthCamera(cfg, world) / Lidar3d(cfg, world)
+    sensor.observation_space                               # Box of the configured encoding
+    sensor.reset(self.np_random)                           # per episode: generator and noise state
+    obs = sensor.observe(state.position, state.rpy)        # capture + encode
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from diana_lab.config.sensing import SensorConfig
+from diana_lab.sensing.encoders import Encoder, make_encoder
+from diana_lab.sensing.frame import SensorFrame
+from diana_lab.sensing.noise import NoiseModel
+from diana_lab.sensing.raycast import RayCaster
+from diana_lab.sensing.transforms import pitch_matrix, rpy_matrix
+from diana_lab.sim.world import World
+
+__all__ = ["RaySensor"]
+
+
+class RaySensor:
+    """Base class of the ray-cast sensors. ``cfg`` is the typed ``sensor`` config (any ``SensorConfig``)."""
+
+    cfg: SensorConfig
+
+    def __init__(self, cfg: SensorConfig, world: World) -> None:
+        self.cfg = cfg
+        self.world = world
+        pattern = np.asarray(self.pattern(), dtype=np.float64)  # (H, W, 3) unit vectors, sensor frame
+        self.image_shape: tuple[int, int] = (pattern.shape[0], pattern.shape[1])
+        mount_rotation = pitch_matrix(math.radians(cfg.mount_pitch_deg))
+        directions = pattern.reshape(-1, 3) @ mount_rotation.T  # rover frame
+        self.mount = np.asarray(cfg.mount_xyz, dtype=np.float64)
+        self.axis_cos = self.optical_axis_cos(pattern)
+        self.caster = RayCaster(world, directions, cfg.nthreads)
+        self.noise = NoiseModel(cfg.noise, cfg.noise_level, self.image_shape, cfg.min_range)
+        self.encoder: Encoder = make_encoder(cfg, self.image_shape, self.axis_cos)
+        self.rng = np.random.default_rng(0)  # replaced by reset(); keeps capture() usable before it
+        self._mount32 = self.mount.astype(np.float32)
+
+    # ------------------------------------------------------------------ what subclasses define
+    def pattern(self) -> np.ndarray:
+        """``(H, W, 3)`` unit ray directions in the sensor frame (x forward, y left, z up)."""
+        raise NotImplementedError
+
+    def optical_axis_cos(self, pattern: np.ndarray) -> np.ndarray | None:
+        """Per-ray cosine to the optical axis (depth = range * cos), or ``None`` if depth is not defined."""
+        return None
+
+    # ------------------------------------------------------------------ API
+    @property
+    def observation_space(self) -> spaces.Box:
+        return self.encoder.space
+
+    @property
+    def n_rays(self) -> int:
+        return len(self.caster)
+
+    def reset(self, rng: np.random.Generator) -> None:
+        """Start an episode: every later noise draw comes from ``rng`` (the env's ``np_random``)."""
+        self.rng = rng
+        self.noise.reset(rng)
+
+    def rays_world(self, position: np.ndarray, rpy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """World ray origins and unit directions, ``(N, 3)`` each (new arrays), for a rover pose."""
+        rotation = rpy_matrix(rpy)
+        rays = self.caster.rays(np.asarray(position, dtype=np.float64) + rotation @ self.mount, rotation)
+        return rays[:, :3].copy(), rays[:, 3:].copy()
+
+    def capture(self, position: np.ndarray, rpy: np.ndarray) -> SensorFrame:
+        """Cast every ray from the rover pose; noise (if configured) draws from the generator of ``reset``."""
+        position = np.asarray(position, dtype=np.float64)
+        rotation = rpy_matrix(rpy)
+        t = self.caster.cast(position + rotation @ self.mount, rotation)
+        if self.noise.active:
+            t = self.noise.apply(t)
+        # NaN outside [min_range, max_range]; ``inf`` (no hit) fails the test too, so no fake max-range hit
+        ranges = np.where((t >= self.cfg.min_range) & (t <= self.cfg.max_range), t, np.float32(np.nan))
+        return SensorFrame(ranges.reshape(self.image_shape), position, np.asarray(rpy, dtype=np.float64),
+                           self.caster.directions, self._mount32, self.axis_cos)
+
+    def encode(self, frame: SensorFrame) -> np.ndarray:
+        """The configured encoding of a frame: float32, finite, inside :attr:`observation_space`."""
+        return self.encoder(frame)
+
+    def observe(self, position: np.ndarray, rpy: np.ndarray) -> np.ndarray:
+        return self.encoder(self.capture(position, rpy))
+
+    def __getstate__(self) -> dict[str, Any]:
+        return self.__dict__.copy()  # the caster drops its open3d scene itself

@@ -1,0 +1,46 @@
+"""Rotations of the rover and sensor frames (x forward, y left, z up; ``rpy`` = roll, pitch, yaw, ZYX).
+
+Plain ``math`` on three scalars: a per-frame pose costs a few microseconds instead of the tens that
+``scipy.spatial.transform.Rotation`` spends on its checks, and the tests hold these against scipy.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["leveling_matrix", "pitch_matrix", "rpy_matrix"]
+
+
+def rpy_matrix(rpy: Sequence[float] | np.ndarray) -> np.ndarray:
+    """``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)``: rotates rover-frame vectors into the world frame.
+
+    Positive pitch lowers the nose (the +x axis turns towards -z), positive roll lowers the left side.
+    """
+    roll, pitch, yaw = float(rpy[0]), float(rpy[1]), float(rpy[2])
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def pitch_matrix(pitch: float) -> np.ndarray:
+    """``Ry(pitch)``: a sensor pitched down by ``pitch`` radians (its +x axis turns towards -z)."""
+    c, s = math.cos(pitch), math.sin(pitch)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def leveling_matrix(rpy: Sequence[float] | np.ndarray) -> np.ndarray:
+    """``Ry(pitch) @ Rx(roll)``: rover frame -> heading frame (yaw kept, z along gravity).
+
+    The elevation map is built in this frame so that a tilted rover still sees level ground as level.
+    """
+    return rpy_matrix((rpy[0], rpy[1], 0.0))

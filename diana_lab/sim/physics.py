@@ -1,0 +1,264 @@
+"""Physics dynamics: the rover's URDF driven by the turn-then-drive controller in PyBullet.
+
+Same interface as :class:`diana_lab.sim.kinematic.KinematicDynamics` (``reset``, ``execute``, ``state``,
+``close``). The controller runs at ``cfg.controller.rate_hz`` on the (estimated) pose and sets skid-steer
+wheel velocity motors; PyBullet steps at ``cfg.time_step`` in between. All checks run at the control rate,
+except contacts with obstacles, which are checked every physics step while an obstacle is close. Outcomes:
+
+* ``reached``: the controller is within its position tolerance (judged on the pose it is given);
+* ``gave_up``: ``controller.time_limit(distance, heading_error)`` ran out;
+* ``collision``: any contact between the rover and an obstacle body;
+* ``tipover``: tilt above ``robot.tipover_deg``;
+* ``stuck``: less than ``cfg.stuck_distance`` of progress (translation plus the wheel arc of any rotation)
+  within ``cfg.stuck_window_s`` while the controller commands motion;
+* ``out_of_bounds``: the rover's centre leaves the terrain;
+* ``sim_error``: a non-finite or absurd state (speed above 20 m/s, spin above 50 rad/s, fallen through the
+  terrain) or a PyBullet error.
+
+Contact model, and why. PyBullet's multibody solver resolves friction along two directions fixed in the world
+(not along the slip velocity), so an isotropic wheel friction makes a skid-steer rover's ability to turn in
+place depend on its world heading (it nearly stalls when aligned with the world axes). Pyramid friction
+(``enableConeFriction=0``) plus a lower friction along the wheel axle (anisotropic friction
+``WHEEL_LATERAL_FRICTION``) removes the stall and gives turn rates near what the Coulomb model of a skid
+steer predicts (about 2/3 of the commanded rate for the Jackal on flat ground). ``cfg.friction`` is the
+terrain's (and obstacles') coefficient; Bullet multiplies the two bodies' coefficients, and wheels use 1.0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+
+import numpy as np
+import pybullet as pb
+
+from diana_lab.config.sim import PhysicsConfig, RobotConfig
+from diana_lab.sim.controller import TurnThenDrive, wrap_angle
+from diana_lab.sim.pybullet_scene import PybulletScene
+from diana_lab.sim.state import Outcome, RoverState, WaypointResult, tilt_deg
+from diana_lab.sim.world import World
+
+PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
+
+GRAVITY = 9.81
+WHEEL_LATERAL_FRICTION = 0.5  # friction along the wheel axle relative to the rolling direction (see above)
+CHASSIS_FRICTION = 0.8  # a high-centred chassis scrapes: a bit less grip than a tyre
+SPAWN_CLEARANCE = 0.02  # m between the wheels' lowest point and the highest terrain under the footprint at spawn
+CONTACT_BREAKING_THRESHOLD = 0.005  # m; Bullet's 0.02 keeps stale points of rolling wheels (slower, stickier)
+MAX_SPEED = 20.0  # m/s: anything faster is a blown-up simulation
+MAX_SPIN = 50.0  # rad/s of the base
+FALL_THROUGH_DEPTH = 0.5  # m below the lowest terrain point: the rover tunnelled through the heightfield
+
+__all__ = ["PhysicsDynamics"]
+
+
+class PhysicsDynamics:
+    """A PyBullet rover on a world; see the module docstring for the contact model and the outcomes."""
+
+    def __init__(self, cfg: PhysicsConfig, world: World, robot: RobotConfig, *, gui: bool = False) -> None:
+        self.cfg, self.world, self.robot = cfg, world, robot
+        self.scene = PybulletScene(world, robot, gui=gui)
+        self._client = c = self.scene.client
+        self._body = self.scene.robot_id
+        self._steps_per_tick = max(1, round(1.0 / (cfg.controller.rate_hz * cfg.time_step)))
+        self._tick = self._steps_per_tick * cfg.time_step
+        pb.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
+        pb.setPhysicsEngineParameter(fixedTimeStep=cfg.time_step, numSubSteps=0,
+                                     numSolverIterations=int(cfg.solver_iterations), enableConeFriction=0,
+                                     deterministicOverlappingPairs=1,
+                                     contactBreakingThreshold=CONTACT_BREAKING_THRESHOLD, physicsClientId=c)
+        self._set_friction()
+        self._wheels = list(self.scene.wheel_indices)
+        self._n_left = len(self.scene.wheels_left)
+        self._torques = [float(robot.max_wheel_torque)] * len(self._wheels)
+        self._obstacles = {bid: i for i, bid in enumerate(self.scene.obstacle_ids)}
+        if world.obstacles:  # bounding circles (xy) for the cheap "is an obstacle close?" test
+            self._ob_xy = np.array([ob.centre[:2] for ob in world.obstacles])
+            self._ob_r = np.array([np.max(np.linalg.norm(ob.vertices[:, :2] - ob.centre[:2], axis=1))
+                                   for ob in world.obstacles])
+        self._time = 0.0
+        self._bounds = world.bounds
+        # below the lowest terrain point by this much: fell through the heightfield (tunnelling)
+        self._floor = world.terrain.min_height - FALL_THROUGH_DEPTH
+
+    # ------------------------------------------------------------------ set-up
+    def _set_friction(self) -> None:
+        c, body = self._client, self._body
+        for bid in (self.scene.terrain_id, *self.scene.obstacle_ids):
+            pb.changeDynamics(bid, -1, lateralFriction=float(self.cfg.friction), rollingFriction=0.0,
+                              spinningFriction=0.0, restitution=0.0, physicsClientId=c)
+        wheels = set(self.scene.wheel_indices)
+        for link in range(-1, pb.getNumJoints(body, physicsClientId=c)):
+            if link in wheels:
+                axis = np.abs(np.asarray(pb.getJointInfo(body, link, physicsClientId=c)[13], dtype=float))
+                axis /= max(float(np.linalg.norm(axis)), 1e-9)
+                aniso = (1.0 - (1.0 - WHEEL_LATERAL_FRICTION) * axis).tolist()  # lower along the axle only
+                pb.changeDynamics(body, link, lateralFriction=1.0, anisotropicFriction=aniso, rollingFriction=0.0,
+                                  spinningFriction=0.0, restitution=0.0, physicsClientId=c)
+            else:
+                pb.changeDynamics(body, link, lateralFriction=CHASSIS_FRICTION, restitution=0.0,
+                                  physicsClientId=c)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def state(self) -> RoverState:
+        """Ground truth of the base link (velocities are those of the base's centre of mass, world frame)."""
+        pos, rpy, lin, ang = self.scene.base_state()
+        return RoverState(pos, rpy, lin, ang, self._time)
+
+    def _drive(self, v: float, w: float) -> None:
+        """Skid steer: each side's wheels roll at ``(v -+ w * track / 2) / r``, torque-limited."""
+        half = 0.5 * self.robot.track_width * w
+        r = self.robot.wheel_radius
+        left, right = (v - half) / r, (v + half) / r
+        targets = [left] * self._n_left + [right] * (len(self._wheels) - self._n_left)
+        pb.setJointMotorControlArray(self._body, self._wheels, pb.VELOCITY_CONTROL, targetVelocities=targets,
+                                     forces=self._torques, physicsClientId=self._client)
+
+    def _footprint_heights(self, x: float, y: float, yaw: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Body-frame sample points of the footprint and the terrain heights under them."""
+        r = self.robot
+        bx, by = np.meshgrid(np.linspace(-r.length / 2, r.length / 2, 7), np.linspace(-r.width / 2, r.width / 2, 5))
+        bx, by = bx.ravel(), by.ravel()
+        c, s = math.cos(yaw), math.sin(yaw)
+        return bx, by, self.world.height(x + c * bx - s * by, y + s * bx + c * by)
+
+    # ------------------------------------------------------------------ interface shared with kinematic
+    def reset(self, xy: np.ndarray, yaw: float, rng: np.random.Generator | None = None) -> RoverState:
+        """Drop the rover at ``xy`` facing ``yaw`` and let it settle; the clock restarts at 0.
+
+        The rover starts tilted like the plane fitted through the terrain under its footprint and just above
+        the highest terrain point under it (``SPAWN_CLEARANCE``), so it falls a couple of centimetres at most
+        (no tunnelling, no bounce) while the wheels hold still. ``rng`` is unused: the spawn is deterministic.
+        """
+        del rng
+        x, y = float(xy[0]), float(xy[1])
+        bx, by, hz = self._footprint_heights(x, y, yaw)
+        design = np.column_stack([np.ones_like(bx), bx, by])
+        (a, b, cc), *_ = np.linalg.lstsq(design, hz, rcond=None)
+        norm = math.sqrt(1.0 + b * b + cc * cc)
+        pitch, roll = -math.atan(b), math.asin(cc / norm)
+        # lift so that the tilted footprint plane clears every sample, then stand on the wheels
+        lift = float(np.max(hz - (a + b * bx + cc * by)))
+        z = a + lift + self.robot.base_height / norm + SPAWN_CLEARANCE
+        self.scene.set_pose([x, y, z], [roll, pitch, yaw])
+        self._drive(0.0, 0.0)
+        for _ in range(int(round(self.cfg.settle_time_s / self.cfg.time_step))):
+            pb.stepSimulation(physicsClientId=self._client)
+        self._time = 0.0
+        return self.state
+
+    def execute(self, waypoint: np.ndarray, controller: TurnThenDrive,
+                pose_estimate: PoseEstimate | None = None) -> WaypointResult:
+        """Drive to ``waypoint`` with the closed-loop controller until it is reached or something fails.
+
+        The loop body runs once per control period; it stays in plain Python floats (no small numpy arrays),
+        which matters next to PyBullet's ~40 us per physics step.
+        """
+        cfg = self.cfg
+        st = self.state
+        est_xy, est_yaw = pose_estimate(st) if pose_estimate else (st.xy, st.yaw)
+        dx, dy = float(waypoint[0] - est_xy[0]), float(waypoint[1] - est_xy[1])
+        limit = controller.time_limit(math.hypot(dx, dy), float(wrap_angle(math.atan2(dy, dx) - est_yaw)))
+        controller.start()
+        x, y = float(st.position[0]), float(st.position[1])
+        roll, pitch = float(st.rpy[0]), float(st.rpy[1])
+        xs, ys, rolls, pitches = [x], [y], [roll], [pitch]
+        anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, st.yaw, 0.0  # last pose that counted as progress
+        arm = 0.5 * self.robot.track_width  # rotation progress: the arc the wheels travel
+        elapsed, length, outcome, detail = 0.0, 0.0, None, ""
+        while True:
+            cmd = controller.command(est_xy, est_yaw, waypoint)
+            if cmd.phase == "done":
+                outcome = "reached"
+                break
+            if elapsed >= limit:
+                outcome, detail = "gave_up", f"time limit {limit:.1f} s"
+                break
+            self._drive(cmd.linear, cmd.angular)
+            try:
+                hit = self._step_tick(x, y)
+                pos, orn = self.scene.base_pose()
+                lin, ang = pb.getBaseVelocity(self._body, physicsClientId=self._client)
+                rpy = pb.getEulerFromQuaternion(orn)
+            except pb.error as exc:
+                outcome, detail = "sim_error", f"PyBullet: {exc}"
+                break
+            elapsed += self._tick
+            self._time += self._tick
+            outcome, detail = self._check(pos, rpy, lin, ang, hit)
+            if outcome == "sim_error":
+                break  # keep the traces finite
+            length += math.hypot(pos[0] - x, pos[1] - y)
+            x, y, yaw = pos[0], pos[1], rpy[2]
+            xs.append(x)
+            ys.append(y)
+            rolls.append(rpy[0])
+            pitches.append(rpy[1])
+            if outcome is not None:
+                break
+            progress = math.hypot(x - anchor_x, y - anchor_y) + abs(wrap_angle(yaw - anchor_yaw)) * arm
+            if progress >= cfg.stuck_distance:
+                anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, yaw, elapsed
+            elif elapsed - anchor_t >= cfg.stuck_window_s:
+                outcome, detail = "stuck", f"moved {progress:.2f} m in {elapsed - anchor_t:.1f} s"
+                break
+            if pose_estimate:
+                est_xy, est_yaw = pose_estimate(RoverState(np.array(pos), np.array(rpy), np.array(lin),
+                                                           np.array(ang), self._time))
+            else:
+                est_xy, est_yaw = (x, y), yaw
+        self._drive(0.0, 0.0)  # hold the wheels until the next command
+        rp = np.column_stack([rolls, pitches])
+        return WaypointResult(outcome, elapsed, length, np.column_stack([xs, ys]),
+                              np.asarray(tilt_deg(rp[:, 0], rp[:, 1]), dtype=float), rp, detail)
+
+    def _step_tick(self, x: float, y: float) -> str:
+        """Advance one control period; returns the name of an obstacle touched ('' if none).
+
+        Contacts are looked up every physics step, but only while an obstacle's bounding circle is within reach
+        of the rover this tick (a glancing touch can be shorter than a control period); otherwise never.
+        """
+        c = self._client
+        near: list[int] = []
+        if self._obstacles:
+            reach = self.robot.radius + 1.0  # generous: the rover moves < 1 m per control period
+            d = np.hypot(self._ob_xy[:, 0] - x, self._ob_xy[:, 1] - y) - self._ob_r
+            near = [self.scene.obstacle_ids[i] for i in np.flatnonzero(d < reach)]
+        for _ in range(self._steps_per_tick):
+            pb.stepSimulation(physicsClientId=c)
+            for bid in near:
+                if pb.getContactPoints(self._body, bid, physicsClientId=c):
+                    return self.world.obstacles[self._obstacles[bid]].name
+        return ""
+
+    def _check(self, pos: tuple[float, ...], rpy: tuple[float, ...], lin: tuple[float, ...],
+               ang: tuple[float, ...], hit: str) -> tuple[Outcome | None, str]:
+        """The failure (if any) of the state after a control period, most fundamental first."""
+        values = (*pos, *rpy, *lin, *ang)
+        if not all(math.isfinite(v) for v in values):
+            return "sim_error", "non-finite rover state"
+        speed, spin = math.hypot(*lin), math.hypot(*ang)
+        if speed > MAX_SPEED or spin > MAX_SPIN:
+            return "sim_error", f"exploding state: speed {speed:.3g} m/s, spin {spin:.3g} rad/s"
+        if pos[2] < self._floor:
+            return "sim_error", f"fell through the terrain (z = {pos[2]:.2f} m)"
+        if hit:
+            return "collision", f"hit {hit}"
+        tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(rpy[0]) * math.cos(rpy[1])))))
+        if tilt > self.robot.tipover_deg:
+            return "tipover", f"tilt {tilt:.1f} deg"
+        x0, x1, y0, y1 = self._bounds
+        if not (x0 <= pos[0] <= x1 and y0 <= pos[1] <= y1):
+            return "out_of_bounds", f"left the terrain at ({pos[0]:.1f}, {pos[1]:.1f})"
+        return None, ""
+
+    # ------------------------------------------------------------------ life cycle
+    def close(self) -> None:
+        self.scene.close()
+
+    def __enter__(self) -> PhysicsDynamics:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

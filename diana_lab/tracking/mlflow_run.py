@@ -1,0 +1,152 @@
+"""One MLflow run per training run, behind a small :class:`Tracker` interface.
+
+:class:`Tracker` is the null object (``tracking.enabled=false``): the runner calls the same methods and
+nothing is recorded. :class:`MlflowTracker` talks to the store through ``MlflowClient`` with an explicit run
+id (no reliance on a thread's "active run"), starts runs with ``mlflow.start_run`` so MLflow adds its system
+tags, and always ends them with an explicit status, so no run is left RUNNING.
+
+A relative SQLite URI (the default ``sqlite:///mlflow.db``) is made absolute and the experiment's artefacts
+are stored beside the database (``mlruns/``), so ``mlflow ui --backend-store-uri <uri>`` finds everything
+whatever the working directory of a later process.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+from diana_lab.tracking.params import chunks, flatten, truncate
+
+__all__ = ["STATUSES", "MlflowTracker", "Tracker", "resolve_uri"]
+
+STATUSES = ("FINISHED", "FAILED", "KILLED")
+MAX_TAG = 8000  # mlflow.utils.validation.MAX_TAG_VAL_LENGTH
+SQLITE = "sqlite:///"
+
+
+def resolve_uri(uri: str) -> str:
+    """``sqlite:///rel.db`` -> ``sqlite:////abs/rel.db`` (other URIs unchanged)."""
+    if uri.startswith(SQLITE) and not uri.startswith(SQLITE + "/") and ":memory:" not in uri:
+        return SQLITE + str(Path(uri[len(SQLITE):]).expanduser().resolve())
+    return uri
+
+
+def sqlite_path(uri: str) -> Path | None:
+    return Path(uri[len(SQLITE):]) if uri.startswith(SQLITE + "/") else None
+
+
+def _quiet_mlflow() -> None:
+    """MLflow and its migrations log at INFO on every new database; keep the console for training."""
+    for name in ("mlflow", "alembic"):
+        logging.getLogger(name).setLevel(logging.WARNING)
+
+
+class Tracker:
+    """No-op tracker (``tracking.enabled=false``); :class:`MlflowTracker` records the same calls."""
+
+    run_id: str | None = None
+    uri: str | None = None
+
+    def existing_params(self) -> dict[str, str]:
+        return {}
+
+    def log_params(self, params: dict[str, Any]) -> None:
+        pass
+
+    def set_tags(self, tags: dict[str, Any]) -> None:
+        pass
+
+    def log_metrics(self, metrics: dict[str, float], step: int) -> None:
+        pass
+
+    def log_artifact(self, path: Path | str, artifact_path: str | None = None) -> None:
+        pass
+
+    def log_artifacts(self, directory: Path | str, artifact_path: str | None = None) -> None:
+        pass
+
+    def log_text(self, text: str, artifact_file: str) -> None:
+        pass
+
+    def end(self, status: str) -> None:
+        pass
+
+
+class MlflowTracker(Tracker):
+    """Start (or, with ``resume_run_id``, reopen) a run in ``experiment`` of the store at ``uri``."""
+
+    def __init__(self, uri: str, experiment: str, run_name: str | None = None,
+                 resume_run_id: str | None = None) -> None:
+        import mlflow
+        from mlflow.tracking import MlflowClient
+
+        _quiet_mlflow()
+        self.uri = resolve_uri(uri)
+        mlflow.set_tracking_uri(self.uri)
+        self.client = MlflowClient(self.uri)
+        if resume_run_id is not None:
+            run = mlflow.start_run(run_id=resume_run_id)
+        else:
+            run = mlflow.start_run(experiment_id=self._experiment_id(experiment), run_name=run_name)
+        self.run_id = run.info.run_id
+        self.experiment_id = run.info.experiment_id
+        self._ended = False
+
+    def _experiment_id(self, name: str) -> str:
+        found = self.client.get_experiment_by_name(name)
+        if found is not None:
+            return found.experiment_id
+        db = sqlite_path(self.uri)
+        location = (db.parent / "mlruns").as_uri() if db is not None else None
+        return self.client.create_experiment(name, artifact_location=location)
+
+    def existing_params(self) -> dict[str, str]:
+        return dict(self.client.get_run(self.run_id).data.params)
+
+    def log_params(self, params: dict[str, Any]) -> None:
+        from mlflow.entities import Param
+
+        flat = flatten(params)
+        for batch in chunks(flat):
+            self.client.log_batch(self.run_id, params=[Param(k, v) for k, v in batch.items()])
+
+    def set_tags(self, tags: dict[str, Any]) -> None:
+        from mlflow.entities import RunTag
+
+        items = {k: truncate(str(v), MAX_TAG) for k, v in tags.items() if v is not None}
+        for batch in chunks(items):
+            self.client.log_batch(self.run_id, tags=[RunTag(k, v) for k, v in batch.items()])
+
+    def log_metrics(self, metrics: dict[str, float], step: int) -> None:
+        from mlflow.entities import Metric
+
+        if not metrics:
+            return
+        now = int(time.time() * 1000)
+        items = [Metric(k, float(v), now, int(step)) for k, v in metrics.items()]
+        for i in range(0, len(items), 1000):
+            self.client.log_batch(self.run_id, metrics=items[i:i + 1000])
+
+    def log_artifact(self, path: Path | str, artifact_path: str | None = None) -> None:
+        self.client.log_artifact(self.run_id, str(path), artifact_path)
+
+    def log_artifacts(self, directory: Path | str, artifact_path: str | None = None) -> None:
+        self.client.log_artifacts(self.run_id, str(directory), artifact_path)
+
+    def log_text(self, text: str, artifact_file: str) -> None:
+        self.client.log_text(self.run_id, text, artifact_file)
+
+    def end(self, status: str) -> None:
+        """End the run with ``status`` (FINISHED, FAILED or KILLED); safe to call twice."""
+        import mlflow
+
+        if self._ended:
+            return
+        self._ended = True
+        active = mlflow.active_run()
+        if active is not None and active.info.run_id == self.run_id:
+            mlflow.end_run(status=status)
+        else:
+            self.client.set_terminated(self.run_id, status=status)

@@ -1,0 +1,68 @@
+"""Training and evaluation envs built from plain config dicts, so env factories pickle for subprocesses.
+
+A factory carries only the resolved env groups (a ``dict``); each process builds its own ``World`` from it
+once and shares it between the envs it hosts (:func:`shared_world`), so four envs in one DummyVecEnv cost
+one terrain and one cost map, and a SubprocVecEnv worker never receives a built world over a pipe.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
+
+from diana_lab import config as C
+from diana_lab.config.evaluation import EvalConfig
+from diana_lab.config.run import AlgoConfig, TrainConfig
+from diana_lab.envs.rover_nav import RoverNavEnv
+from diana_lab.sim.world import World
+
+__all__ = ["env_config", "eval_env_config", "make_env", "make_training_env", "shared_world", "wrap_normalize"]
+
+MONITOR_KEYWORDS = ("outcome",)  # copied from the last step's info into Monitor's episode record
+_WORLDS: dict[str, World] = {}
+
+
+def env_config(cfg: DictConfig) -> dict[str, Any]:
+    """The resolved env groups of a composed config as plain data (what a factory carries)."""
+    return {g: OmegaConf.to_container(cfg[g], resolve=True) for g in C.GROUPS if g in cfg}
+
+
+def eval_env_config(cfg: DictConfig, eval_cfg: EvalConfig) -> dict[str, Any]:
+    """The env groups for evaluation: training's, with ``eval.dynamics`` swapped in when it is set."""
+    groups = env_config(cfg)
+    if eval_cfg.dynamics is not None and eval_cfg.dynamics != groups["dynamics"].get("name"):
+        node = C.compose([], config_name=f"dynamics/{eval_cfg.dynamics}").dynamics
+        groups["dynamics"] = OmegaConf.to_container(node, resolve=True)
+    return groups
+
+
+def shared_world(world_cfg: dict[str, Any]) -> World:
+    """This process's World for ``world_cfg`` (built on first use; worlds are read-only after building)."""
+    key = json.dumps(world_cfg, sort_keys=True, default=str)
+    if key not in _WORLDS:
+        _WORLDS[key] = C.build(C.to_object("world", world_cfg))
+    return _WORLDS[key]
+
+
+def make_env(groups: dict[str, Any], render_mode: str | None = None) -> RoverNavEnv:
+    """One env from plain env groups (module-level, so ``functools.partial(make_env, groups)`` pickles)."""
+    return RoverNavEnv(config=groups, world_instance=shared_world(groups["world"]), render_mode=render_mode)
+
+
+def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int) -> VecEnv:
+    """``train.n_envs`` Monitor-wrapped envs; env ``i`` is seeded ``seed + i`` at its first reset."""
+    vec_cls = SubprocVecEnv if train.vec_env == "subproc" else DummyVecEnv
+    return make_vec_env(functools.partial(make_env, env_config(cfg)), n_envs=train.n_envs, seed=seed,
+                        vec_env_cls=vec_cls, monitor_kwargs={"info_keywords": MONITOR_KEYWORDS})
+
+
+def wrap_normalize(venv: VecEnv, algo: AlgoConfig, gamma: float) -> VecEnv:
+    """VecNormalize over the keys in ``algo.norm_obs_keys`` (images and point masks must stay raw)."""
+    keys = [k for k in algo.norm_obs_keys if k in venv.observation_space.spaces]
+    return VecNormalize(venv, norm_obs=bool(keys), norm_reward=algo.norm_reward, norm_obs_keys=keys or None,
+                        gamma=gamma)

@@ -1,0 +1,263 @@
+"""Train one agent from a composed config: envs, model, callbacks, MLflow run, final evaluation, summary.
+
+:func:`train` is the whole of ``python -m diana_lab``. Its order matters for users:
+
+1. every group is validated before anything starts, so a bad value fails in a second with no MLflow run;
+2. the MLflow run is opened (or reopened, for ``train.resume``) and always ended -- FINISHED, FAILED on an
+   exception, KILLED on Ctrl-C or SIGTERM -- never left RUNNING;
+3. an interrupt saves a checkpoint first, so ``train.resume`` can continue with the same step counter.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import math
+import sys
+import time
+import zipfile
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+from stable_baselines3.common.base_class import BaseAlgorithm
+from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.logger import HumanOutputFormat, Logger
+from stable_baselines3.common.utils import set_random_seed
+from stable_baselines3.common.vec_env import VecEnv, VecNormalize
+
+from diana_lab import config as C
+from diana_lab.agents.factory import build_model, load_model
+from diana_lab.cli import UserError
+from diana_lab.config.evaluation import EvalConfig
+from diana_lab.config.run import AlgoConfig, TrainConfig, TrackingConfig
+from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
+from diana_lab.tracking.git import git_commit, git_dirty
+from diana_lab.tracking.params import numeric_metrics
+from diana_lab.training.checkpoints import TrackedCheckpoints
+from diana_lab.training.context import RunContext
+from diana_lab.training.envs import env_config, make_env, make_training_env, wrap_normalize
+from diana_lab.training.episode_stats import EpisodeStats
+from diana_lab.training.periodic_eval import PeriodicEvaluation, save_model
+from diana_lab.training.progress import ProgressWithStats
+from diana_lab.training.resume import ResumePoint, find_resume_point, write_run_info
+from diana_lab.training.signals import sigterm_as_interrupt
+from diana_lab.training.summary import TrainResult
+
+__all__ = ["RUN_GROUPS", "train"]
+
+RUN_GROUPS = (*C.GROUPS, "algo", "train", "eval", "tracking")
+
+
+def _saved_timesteps(model_zip: Path) -> int:
+    """``num_timesteps`` stored in an SB3 archive (to seed the envs of a resumed run before loading it)."""
+    try:
+        with zipfile.ZipFile(model_zip) as zf:
+            return int(json.loads(zf.read("data")).get("num_timesteps", 0))
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+        raise UserError(f"train.resume: '{model_zip}' is not a Stable-Baselines3 model archive ({exc})") from exc
+
+
+def _run_name(cfg: DictConfig, ctx: RunContext, tracking: TrackingConfig) -> str:
+    if tracking.run_name:
+        return tracking.run_name
+    pick = {g: ctx.choices.get(g) or OmegaConf.select(cfg, f"{g}.name", default=g) for g in ("algo", "world", "sensor")}
+    return f"{pick['algo']}-{pick['world']}-{pick['sensor']}-s{cfg.seed}"
+
+
+class TrainingRun:
+    """The state of one run between setup and teardown (kept so an interrupt can checkpoint it)."""
+
+    def __init__(self, cfg: DictConfig, ctx: RunContext, typed: dict[str, Any], tracker: Tracker,
+                 resume: ResumePoint | None) -> None:
+        self.cfg, self.ctx, self.tracker, self.resume = cfg, ctx, tracker, resume
+        self.algo: AlgoConfig = typed["algo"]
+        self.train_cfg: TrainConfig = typed["train"]
+        self.eval_cfg: EvalConfig = typed["eval"]
+        self.tracking_cfg: TrackingConfig = typed["tracking"]
+        self.seed = int(cfg.seed)
+        self.run_dir = ctx.run_dir
+        self.venv: VecEnv | None = None
+        self.model: BaseAlgorithm | None = None
+        self.checkpoints: TrackedCheckpoints | None = None
+        self.evaluator: PeriodicEvaluation | None = None
+        self.progress: ProgressWithStats | None = None
+        self.start_steps = 0
+        self.learn_time = 0.0
+
+    # ------------------------------------------------------------------ setup
+    def log_run_metadata(self) -> None:
+        t = self.tracker
+        tags: dict[str, Any] = {**self.ctx.choices, "algo": self.algo.name, "seed": self.seed,
+                                "run_dir": str(self.run_dir.resolve()), "git_commit": git_commit(),
+                                "mlflow.source.git.commit": git_commit(), "git_dirty": git_dirty(),
+                                "overrides": self.ctx.override_string}
+        if self.ctx.job_num is not None:
+            tags["hydra_job"] = self.ctx.job_num
+        if self.resume is not None:
+            tags["resumed_from"] = self.resume.source
+        t.set_tags(tags)
+        resolved = OmegaConf.to_container(self.cfg, resolve=True)
+        t.log_params(_flat_missing(resolved, t.existing_params()))
+        t.log_text(OmegaConf.to_yaml(self.cfg, resolve=True), "config_resolved.yaml")
+        hydra_dir = self.run_dir / ".hydra"
+        if hydra_dir.is_dir():
+            t.log_artifacts(hydra_dir, ".hydra")
+        write_run_info(self.run_dir, {"mlflow_run_id": t.run_id, "tracking_uri": t.uri, "algo": self.algo.name})
+
+    def build(self) -> None:
+        device = self.train_cfg.device
+        if self.resume is None:
+            self.venv = make_training_env(self.cfg, self.train_cfg, self.seed)
+            if self.algo.normalize:
+                self.venv = wrap_normalize(self.venv, self.algo, self.algo.gamma)
+            self.model = build_model(self.algo, self.venv, self.seed, device)
+        else:
+            ckpt = self.resume.checkpoint
+            done = ckpt.steps if ckpt.steps >= 0 else _saved_timesteps(ckpt.model)
+            # new episodes, not a replay of the first ones: the env seeds move on with the step count
+            self.venv = make_training_env(self.cfg, self.train_cfg, self.seed + done)
+            if self.algo.normalize:
+                if ckpt.vecnormalize is not None:
+                    self.venv = VecNormalize.load(str(ckpt.vecnormalize), self.venv)
+                    self.venv.training, self.venv.norm_reward = True, self.algo.norm_reward
+                else:
+                    print(f"warning: no VecNormalize statistics beside {ckpt.model}; starting them afresh",
+                          file=sys.stderr)
+                    self.venv = wrap_normalize(self.venv, self.algo, self.algo.gamma)
+            self.model = load_model(self.algo, ckpt.model, self.venv, device)
+            if ckpt.replay_buffer is not None and hasattr(self.model, "replay_buffer"):
+                self.model.load_replay_buffer(str(ckpt.replay_buffer))
+        formats: list[Any] = [MLflowOutputFormat(self.tracker)]
+        if not self.train_cfg.progress_bar:
+            formats.insert(0, HumanOutputFormat(sys.stdout))
+        self.model.set_logger(Logger(folder=None, output_formats=formats))
+        self.start_steps = self.model.num_timesteps
+
+    def callbacks(self) -> list[BaseCallback]:
+        tc = self.tracking_cfg
+        self.checkpoints = TrackedCheckpoints(self.run_dir / "checkpoints", self.train_cfg.checkpoint_every,
+                                              self.train_cfg.n_envs, self.tracker, upload=tc.log_checkpoints,
+                                              upload_replay_buffer=tc.log_replay_buffer, off_policy=self.algo.off_policy)
+        self.evaluator = PeriodicEvaluation(functools.partial(make_env, env_config(self.cfg)), self.eval_cfg,
+                                            self.tracker, self.run_dir / "best")
+        cbs: list[BaseCallback] = [EpisodeStats(), self.checkpoints, self.evaluator]
+        if self.train_cfg.progress_bar:
+            self.progress = ProgressWithStats()
+            cbs.append(self.progress)
+        return cbs
+
+    # ------------------------------------------------------------------ phases
+    def learn(self) -> None:
+        assert self.model is not None
+        remaining = self.train_cfg.total_timesteps - self.model.num_timesteps
+        if remaining <= 0:
+            raise UserError(f"train.total_timesteps={self.train_cfg.total_timesteps}: the resumed model has already "
+                            f"trained {self.model.num_timesteps} steps; set a larger total to continue")
+        t0 = time.perf_counter()
+        try:
+            self.model.learn(remaining, callback=CallbackList(self.callbacks()), log_interval=self.train_cfg.log_interval,
+                             reset_num_timesteps=self.resume is None, progress_bar=False)
+        finally:
+            self.learn_time = time.perf_counter() - t0
+            if self.progress is not None:
+                self.progress.close()
+
+    def interrupted(self) -> None:
+        """Ctrl-C / SIGTERM: save a checkpoint of whatever has been trained so far."""
+        if self.checkpoints is not None and getattr(self.checkpoints, "model", None) is not None:
+            ckpt = self.checkpoints.save()
+            print(f"\ninterrupted at {ckpt.steps} steps: checkpoint {ckpt.model}", file=sys.stderr)
+
+    def finish(self) -> dict[str, Any]:
+        """Final checkpoint and model, the final evaluation (files + ``eval/*``), the best model if needed."""
+        assert self.model is not None and self.checkpoints is not None and self.evaluator is not None
+        self.checkpoints.save()
+        for path in save_model(self.model, self.run_dir / "model"):
+            self.tracker.log_artifact(path, "model")
+        if not self.train_cfg.final_eval:
+            return self.evaluator.last_summary or {}
+        from diana_lab.evaluation.core import evaluate
+        from diana_lab.evaluation.policies import SB3Policy
+
+        out = self.run_dir / "eval"
+        env = self.evaluator.env()  # the evaluation env (its dynamics already applied)
+        policy = SB3Policy(self.model, self.model.get_vec_normalize_env(), deterministic=self.eval_cfg.deterministic,
+                           seed=self.eval_cfg.seed)
+        summary = evaluate(policy, env, self.eval_cfg, out)
+        self.tracker.log_metrics(numeric_metrics(summary, "eval/"), self.model.num_timesteps)
+        self.tracker.log_artifacts(out, "eval")
+        spl = float(summary.get("spl", math.nan))
+        if math.isfinite(spl) and spl > self.evaluator.best_spl:  # e.g. no periodic evaluation ran
+            self.evaluator.best_spl = spl
+            for path in save_model(self.model, self.run_dir / "best"):
+                self.tracker.log_artifact(path, "best")
+        return summary
+
+    def result(self, status: str, summary: dict[str, Any]) -> TrainResult:
+        steps = self.model.num_timesteps if self.model is not None else 0
+        fps = (steps - self.start_steps) / self.learn_time if self.learn_time > 0 else math.nan
+        best = self.evaluator.best_spl if self.evaluator is not None else -math.inf
+        return TrainResult(status=status, run_dir=self.run_dir, algo=self.algo.name, num_timesteps=steps,
+                           wall_time_s=self.learn_time, fps=fps, run_id=self.tracker.run_id,
+                           tracking_uri=self.tracker.uri, eval_summary=summary,
+                           best_spl=best if math.isfinite(best) else math.nan,
+                           checkpoint=self.checkpoints.last.model if self.checkpoints and self.checkpoints.last else None)
+
+    def close(self) -> None:
+        if self.evaluator is not None:
+            self.evaluator.close()
+        if self.venv is not None:
+            try:
+                self.venv.close()
+            except (EOFError, BrokenPipeError, OSError):  # subprocess workers already gone after Ctrl-C
+                pass
+
+
+def _flat_missing(resolved: Any, existing: dict[str, str]) -> dict[str, Any]:
+    """The config's params that the run does not have yet (a resumed run keeps its original values)."""
+    from diana_lab.tracking.params import flatten
+
+    return {k: v for k, v in flatten(resolved).items() if k not in existing}
+
+
+def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
+    """Train, evaluate and track one run (see the module docstring). Interrupts propagate after cleanup,
+    with the result attached as ``exc.result``."""
+    typed = C.validate(cfg, [g for g in RUN_GROUPS if g in cfg])
+    missing = [g for g in ("algo", "train", "eval", "tracking") if g not in typed]
+    if missing:
+        raise C.ConfigError(f"{', '.join(missing)}: missing from the config (add them to conf/config.yaml defaults)")
+    train_cfg: TrainConfig = typed["train"]
+    tracking: TrackingConfig = typed["tracking"]
+    if train_cfg.torch_threads:
+        import torch
+
+        torch.set_num_threads(train_cfg.torch_threads)
+    set_random_seed(int(cfg.seed))
+    uri = resolve_uri(tracking.uri) if tracking.enabled else None
+    resume = find_resume_point(str(train_cfg.resume), uri, ctx.run_dir / "resume") if train_cfg.resume else None
+    if resume is not None and resume.algo and resume.algo != typed["algo"].name:
+        raise UserError(f"train.resume: {resume.source} was trained with algo={resume.algo}; "
+                        f"pass algo={resume.algo} to continue it")
+    tracker: Tracker = (MlflowTracker(uri, tracking.experiment, _run_name(cfg, ctx, tracking),
+                                      resume.run_id if resume else None) if uri is not None else Tracker())
+    run = TrainingRun(cfg, ctx, typed, tracker, resume)
+    status, summary = "FAILED", {}
+    try:
+        with sigterm_as_interrupt():
+            try:
+                run.log_run_metadata()
+                run.build()
+                run.learn()
+                summary = run.finish()
+            except KeyboardInterrupt as exc:
+                status = "KILLED"
+                run.interrupted()
+                exc.result = run.result(status, summary)  # type: ignore[attr-defined]
+                raise
+        status = "FINISHED"
+        return run.result(status, summary)
+    finally:
+        run.close()
+        tracker.end(status)

@@ -1,0 +1,191 @@
+"""The gymnasium contract of diana_lab/RoverNav-v0, its episodes, terminations and info."""
+
+import math
+import pickle
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+import diana_lab  # noqa: F401  (registers the env)
+from diana_lab.envs.action_spaces import ActionError
+from diana_lab.envs.rover_nav import RoverNavEnv
+
+def make(**kwargs) -> RoverNavEnv:
+    kwargs.setdefault("world", "flat")
+    return RoverNavEnv(**kwargs)
+
+
+def goal_seeking_action(env: RoverNavEnv) -> np.ndarray:
+    est = env.pose_estimate
+    offset = env.goal - est.xy
+    extent = env.mapping.extent * 0.9
+    if np.hypot(*offset) > extent:
+        offset = offset / np.hypot(*offset) * extent
+    return env.mapping.action_for(offset, est.yaw).astype(np.float32)
+
+
+def test_gym_make_works_with_defaults():
+    env = gym.make("diana_lab/RoverNav-v0")
+    obs, info = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+    assert info["start_distance"] >= 8.0 - 1e-6
+    env.close()
+
+
+GRID = [  # every option of every group at least once (world x robot x dynamics x action_space x encoding)
+    ["world=flat", "robot=jackal", "dynamics=kinematic", "action_space=square", "sensor=depth_camera"],
+    ["world=hills", "robot=husky", "dynamics=kinematic", "action_space=circle", "sensor=lidar3d",
+     "sensor.encoding=points"],
+    ["world=craters", "robot=rocker_bogie", "dynamics=kinematic", "action_space=square",
+     "sensor.encoding=elevation_map"],
+    ["world=mars_yard", "robot=jackal", "dynamics=physics", "action_space=circle", "sensor=depth_camera_paper"],
+    ["world=flat", "robot=rocker_bogie", "dynamics=physics", "action_space=square", "sensor=lidar3d",
+     "sensor.encoding=elevation_map", "action_space.frame=world"],
+]
+
+
+@pytest.mark.parametrize("overrides", GRID, ids=lambda o: "-".join(x.split("=")[1] for x in o))
+def test_check_env_grid(overrides):
+    from diana_lab.config import compose
+
+    env = RoverNavEnv(config=compose(overrides))
+    check_env(env, skip_render_check=True)
+    env.close()
+
+
+def test_seeded_resets_and_steps_are_identical():
+    a, b = make(world="hills"), make(world="hills")
+    oa, _ = a.reset(seed=7)
+    ob, _ = b.reset(seed=7)
+    for key in oa:
+        np.testing.assert_array_equal(oa[key], ob[key])
+    for _ in range(3):
+        action = np.array([0.6, -0.2], dtype=np.float32)
+        ra, rb = a.step(action), b.step(action)
+        np.testing.assert_array_equal(ra[0]["goal"], rb[0]["goal"])
+        assert ra[1] == rb[1]
+    oc, _ = a.reset(seed=8)
+    assert not np.array_equal(oa["goal"], oc["goal"])
+
+
+@pytest.mark.parametrize("dynamics", ["kinematic", "physics"])
+def test_scripted_goal_seeking_policy_succeeds_on_flat(dynamics):
+    env = make(dynamics=dynamics)
+    successes = 0
+    for seed in range(3 if dynamics == "physics" else 5):
+        env.reset(seed=seed)
+        for _ in range(env.episode_cfg.max_steps):
+            _, _, terminated, truncated, info = env.step(goal_seeking_action(env))
+            if terminated or truncated:
+                break
+        successes += info.get("outcome") == "success"
+        assert info["path_length"] >= info["start_distance"] - env.episode_cfg.goal_tolerance - 0.3
+    assert successes == (3 if dynamics == "physics" else 5)
+    env.close()
+
+
+def test_info_carries_what_evaluation_needs():
+    env = make()
+    env.reset(seed=1)
+    _, reward, _, _, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+    for key in ("waypoint", "waypoint_outcome", "waypoint_reached", "sim_time", "path_length", "max_tilt_deg",
+                "tilt_deg", "reward_terms", "distance_to_goal"):
+        assert key in info
+    assert reward == pytest.approx(sum(info["reward_terms"].values()))
+    assert info["sim_time"] > 0 and info["path_length"] == pytest.approx(3.5 - 0.2, abs=1e-6)
+
+
+def test_fixed_episode_through_reset_options():
+    env = make()
+    _, info = env.reset(seed=0, options={"start": (0.0, 0.0), "goal": (10.0, 0.0), "yaw": 0.0})
+    np.testing.assert_allclose(info["goal"], (10.0, 0.0))
+    assert info["distance_to_goal"] == pytest.approx(10.0)
+    with pytest.raises(ValueError, match="outside the map"):
+        env.reset(options={"start": (0.0, 0.0), "goal": (100.0, 0.0)})
+    with pytest.raises(ValueError, match="unknown key"):
+        env.reset(options={"begin": (0.0, 0.0)})
+
+
+def test_bad_actions_raise_a_clear_error():
+    env = make()
+    env.reset(seed=0)
+    with pytest.raises(ActionError, match="finite"):
+        env.step(np.array([np.nan, 0.0]))
+
+
+def test_waypoints_are_clamped_to_the_map():
+    env = make()
+    env.reset(seed=0, options={"start": (18.5, 0.0), "goal": (0.0, 0.0), "yaw": 0.0})
+    _, _, terminated, _, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
+    assert info["waypoint"][0] <= 20.0 - env.robot.radius - env.episode_cfg.map_margin + 1e-9
+    assert info.get("outcome") != "out_of_bounds"
+
+
+def run_until_done(env, action_fn, max_steps=200):
+    for _ in range(max_steps):
+        _, _, terminated, truncated, info = env.step(action_fn(env))
+        if terminated or truncated:
+            return terminated, truncated, info
+    raise AssertionError("episode did not end")
+
+
+def test_collision_terminates_once():
+    from diana_lab.sim.terrain import Terrain
+    from diana_lab.sim.world import World
+    from diana_lab.sim.worlds import _rock
+
+    rocks = [_rock(np.random.default_rng(i), np.array([4.0, y]), 0.9, 0.0, f"r{i}") for i, y in
+             enumerate(np.arange(-19.0, 19.5, 0.8))]
+    world = World("wall", Terrain(np.zeros((81, 81)), 40.0, 40.0), rocks)
+    env = RoverNavEnv(world="flat", world_instance=world)
+    env.reset(seed=0, options={"start": (0.0, 0.0), "goal": (12.0, 0.0), "yaw": 0.0})
+    terminated, truncated, info = run_until_done(env, goal_seeking_action)
+    assert (terminated, truncated, info["outcome"]) == (True, False, "collision")
+    assert info["reward_terms"]["collision"] < 0
+
+
+def test_tipover_and_timeout_and_stuck_are_reachable():
+    from diana_lab.sim.terrain import Terrain
+    from diana_lab.sim.world import World
+
+    x = np.linspace(-20, 20, 161)
+    ramp = np.tile(np.clip(x - 2.0, 0, None) * math.tan(math.radians(45)), (161, 1))
+    world = World("ramp", Terrain(ramp, 40.0, 40.0))
+    env = RoverNavEnv(world="flat", world_instance=world, episode={"min_distance": 1.0, "max_distance": 3.0})
+    # along the 45-degree side slope (climbing only ~19 degrees, rolling ~43): the rover tips over
+    env.reset(seed=0, options={"start": (1.5, -5.0), "goal": (1.8, 5.0), "yaw": math.pi / 2})
+    terminated, _, info = run_until_done(
+        env, lambda e: e.mapping.action_for(np.array([1.1, 3.0]), e.pose_estimate.yaw).astype(np.float32))
+    assert (terminated, info["outcome"]) == (True, "tipover")
+    assert info["reward_terms"]["tipover"] < 0
+    # straight up the ramp: stuck at its foot, the episode is truncated as "stuck"
+    env.reset(seed=0, options={"start": (0.0, 0.0), "goal": (8.0, 0.0), "yaw": 0.0})
+    terminated, truncated, info = run_until_done(env, lambda e: np.array([1.0, 0.0], dtype=np.float32))
+    assert (terminated, truncated, info["outcome"]) == (False, True, "stuck")
+    # a policy that only turns: the step limit ends it as a timeout
+    env = RoverNavEnv(world="flat", episode={"max_steps": 5})
+    env.reset(seed=0)
+    terminated, truncated, info = run_until_done(env, lambda e: e.mapping.action_for(
+        np.array([0.1, 0.0]), e.pose_estimate.yaw).astype(np.float32) * 0)
+    assert (terminated, truncated) == (False, True) and info["outcome"] in ("timeout", "stuck")
+
+
+def test_env_factory_pickles_for_subprocesses():
+    from functools import partial
+
+    factory = partial(RoverNavEnv, world="flat")
+    env = pickle.loads(pickle.dumps(factory))()
+    obs, _ = env.reset(seed=0)
+    assert env.observation_space.contains(obs)
+
+
+def test_rgb_array_render():
+    env = make(render_mode="rgb_array")
+    env.reset(seed=0)
+    env.step(np.array([1.0, 0.0], dtype=np.float32))
+    frame = env.render()
+    assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8
+    assert frame.std() > 5  # not a blank image
+    env.close()
