@@ -17,8 +17,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from diana_lab.config import env as _env_schemas  # noqa: F401  (registers its schemas)
 from diana_lab.config import evaluation as _eval_schema  # noqa: F401  (registers the eval schema)
-from diana_lab.config import sensing  # noqa: F401  (registers the sensor schemas)
 from diana_lab.config import run as _run_schemas  # noqa: F401  (registers algo, train, tracking)
+from diana_lab.config import sensing as _sensor_schemas  # noqa: F401  (registers the sensor schemas)
 from diana_lab.config.store import SCHEMAS, register, store_schemas
 from diana_lab.config.validation import ConfigError
 

@@ -24,8 +24,19 @@ from diana_lab.evaluation.suite import make_suite
 
 __all__ = ["TABLE_KEYS", "eval_env", "evaluate", "noise_sensor", "summary_table", "sweep_sensor_noise"]
 
-TABLE_KEYS = ("episodes", "success_rate", "spl", "collision_rate", "tipover_rate", "stuck_rate", "timeout_rate",
-              "mean_path_length_m", "mean_speed_mps", "mean_max_tilt_deg", "time_over_15deg_frac")
+TABLE_KEYS = (
+    "episodes",
+    "success_rate",
+    "spl",
+    "collision_rate",
+    "tipover_rate",
+    "stuck_rate",
+    "timeout_rate",
+    "mean_path_length_m",
+    "mean_speed_mps",
+    "mean_max_tilt_deg",
+    "time_over_15deg_frac",
+)
 NOISY_PRESET = "realistic"  # the preset a sweep uses when the configured sensor is noiseless
 
 
@@ -42,17 +53,15 @@ def noise_sensor(sensor: Any, level: float) -> Any:
 
 def eval_env(env: gym.Env, cfg: EvalConfig, noise_level: float | None = None) -> gym.Env:
     """``env`` itself when it already matches ``cfg``, else a new env on the same world with the evaluation's
-    dynamics (keeping the training's controller and pose noise) and/or the sensor at ``noise_level``."""
+    dynamics (the option's own config, ``conf/dynamics/<name>.yaml``, as the training runner's evaluation
+    env uses) and/or the sensor at ``noise_level``."""
     from diana_lab.envs.rover_nav import RoverNavEnv
 
     base = env.unwrapped
     groups = dict(base.cfg)
     changed = False
     if cfg.dynamics is not None and groups["dynamics"].name != cfg.dynamics:
-        new = to_object("dynamics", cfg.dynamics)
-        groups["dynamics"] = dataclasses.replace(new, controller=groups["dynamics"].controller,
-                                                 pose_noise=groups["dynamics"].pose_noise)
-        changed = True
+        groups["dynamics"], changed = to_object("dynamics", cfg.dynamics), True
     if noise_level is not None:
         sensor = noise_sensor(groups["sensor"], noise_level)
         if sensor != groups["sensor"]:
@@ -66,8 +75,8 @@ def evaluate(policy: Policy, env: gym.Env, cfg: EvalConfig | Any, out_dir: Path 
     """Run ``policy`` on the suite of ``cfg`` and write the results into ``out_dir``; returns the summary.
 
     Writes ``episodes.csv`` (one row per episode), ``summary.json`` (see
-    :func:`~diana_lab.evaluation.metrics.summarize`), ``trajectories.png`` and ``tilt.png`` (``cfg.plots``) and
-    ``episode_0.gif`` (``cfg.video``). ``env`` is the unwrapped ``RoverNavEnv`` (or a wrapper of it that
+    :func:`~diana_lab.evaluation.metrics.summarize`), ``trajectories.png`` and ``tilt.png`` (``cfg.plots``)
+    and ``episode_0.gif`` (``cfg.video``). ``env`` is the unwrapped ``RoverNavEnv`` (or a wrapper of it that
     leaves observations alone); ``cfg.dynamics`` is applied here, ``cfg.sensor_noise`` is not (see
     :func:`sweep_sensor_noise`). The same ``cfg.seed`` gives a byte-identical ``summary.json``.
     """
@@ -86,8 +95,10 @@ def evaluate(policy: Policy, env: gym.Env, cfg: EvalConfig | Any, out_dir: Path 
 
             base = run_env.unwrapped
             name = getattr(policy, "name", type(policy).__name__)
-            title = (f"{name} on {base.world.name} ({base.cfg['dynamics'].name}): "
-                     f"{summary['success_rate']:.0%} success, SPL {summary['spl']:.2f}")
+            title = (
+                f"{name} on {base.world.name} ({base.cfg['dynamics'].name}): "
+                f"{summary['success_rate']:.0%} success, SPL {summary['spl']:.2f}"
+            )
             plot_trajectories(base.world, df, traces, out / "trajectories.png", title)
             plot_tilt(df, traces, out / "tilt.png", base.robot.tipover_deg, f"tilt along the path: {name}")
     finally:
@@ -96,8 +107,9 @@ def evaluate(policy: Policy, env: gym.Env, cfg: EvalConfig | Any, out_dir: Path 
     return summary
 
 
-def sweep_sensor_noise(policy: Policy, env: gym.Env, cfg: EvalConfig | Any,
-                       out_dir: Path | str) -> dict[float, dict[str, Any]]:
+def sweep_sensor_noise(
+    policy: Policy, env: gym.Env, cfg: EvalConfig | Any, out_dir: Path | str
+) -> dict[float, dict[str, Any]]:
     """:func:`evaluate` at every level of ``cfg.sensor_noise`` (in ``out_dir/noise_<level>/``); also writes
     ``sensor_noise.csv`` (one row per level). Returns ``{level: summary}``."""
     cfg = _eval_config(cfg)
@@ -117,6 +129,6 @@ def sweep_sensor_noise(policy: Policy, env: gym.Env, cfg: EvalConfig | Any,
 
 def summary_table(summaries: dict[Any, dict[str, Any]], index_name: str = "policy") -> pd.DataFrame:
     """The main figures of several summaries side by side (what the CLI prints)."""
-    table = pd.DataFrame({k: {m: s.get(m) for m in TABLE_KEYS} for k, s in summaries.items()}).T
+    table = pd.DataFrame({k: {m: s.get(m) for m in TABLE_KEYS} for k, s in summaries.items()}).T.astype(float)
     table.index.name = index_name
     return table

@@ -16,6 +16,7 @@ that differ, since running it would only produce a shape error deep inside torch
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import tempfile
@@ -29,13 +30,18 @@ from omegaconf import DictConfig, OmegaConf
 
 from diana_lab.cli import UserError
 from diana_lab.config import ConfigError
-from diana_lab.evaluation.policies import AStarOracle, Policy, SB3Policy, StraightLine
+from diana_lab.evaluation.oracle import AStarOracle
+from diana_lab.evaluation.policies import Policy, SB3Policy, StraightLine
 
 __all__ = ["PRETRAINED_DIR", "LoadedPolicy", "check_observation_space", "load_policy", "load_sb3"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "assets" / "policies" / "reference"
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
-MODEL_ARTIFACT, VECNORM_ARTIFACT, CONFIG_ARTIFACT = "model/model.zip", "model/vecnormalize.pkl", ".hydra/config.yaml"
+MODEL_ARTIFACT, VECNORM_ARTIFACT, CONFIG_ARTIFACT = (
+    "model/model.zip",
+    "model/vecnormalize.pkl",
+    ".hydra/config.yaml",
+)
 
 # the module of a saved policy class -> the algorithm that loads it (on-policy actor-critics load as PPO:
 # A2C and PPO share the policy and ``predict``)
@@ -50,11 +56,18 @@ ALGOS_BY_MODULE = {
     "sb3_contrib.trpo": ("sb3_contrib", "TRPO"),
     "sb3_contrib.ars": ("sb3_contrib", "ARS"),
 }
-ALGOS_BY_NAME = {"ppo": ("stable_baselines3", "PPO"), "a2c": ("stable_baselines3", "A2C"),
-                 "sac": ("stable_baselines3", "SAC"), "td3": ("stable_baselines3", "TD3"),
-                 "ddpg": ("stable_baselines3", "DDPG"), "tqc": ("sb3_contrib", "TQC"),
-                 "trpo": ("sb3_contrib", "TRPO"), "recurrent_ppo": ("sb3_contrib", "RecurrentPPO"),
-                 "recurrentppo": ("sb3_contrib", "RecurrentPPO"), "ppo_lstm": ("sb3_contrib", "RecurrentPPO")}
+ALGOS_BY_NAME = {
+    "ppo": ("stable_baselines3", "PPO"),
+    "a2c": ("stable_baselines3", "A2C"),
+    "sac": ("stable_baselines3", "SAC"),
+    "td3": ("stable_baselines3", "TD3"),
+    "ddpg": ("stable_baselines3", "DDPG"),
+    "tqc": ("sb3_contrib", "TQC"),
+    "trpo": ("sb3_contrib", "TRPO"),
+    "recurrent_ppo": ("sb3_contrib", "RecurrentPPO"),
+    "recurrentppo": ("sb3_contrib", "RecurrentPPO"),
+    "ppo_lstm": ("sb3_contrib", "RecurrentPPO"),
+}
 
 
 @dataclass
@@ -77,6 +90,12 @@ def _algo_class(model_zip: Path, train_cfg: DictConfig | None) -> type:
     the module of the policy class recorded in the zip's ``data``."""
     import importlib
 
+    target = OmegaConf.select(train_cfg, "algo._target_", default=None) if train_cfg is not None else None
+    if isinstance(target, str) and "." in target:
+        from hydra.utils import get_class
+
+        with contextlib.suppress(Exception):
+            return get_class(target)
     name = OmegaConf.select(train_cfg, "algo.name", default=None) if train_cfg is not None else None
     if isinstance(name, str) and name.lower() in ALGOS_BY_NAME:
         package, cls = ALGOS_BY_NAME[name.lower()]
@@ -87,12 +106,19 @@ def _algo_class(model_zip: Path, train_cfg: DictConfig | None) -> type:
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise UserError(f"policy: '{model_zip}' is not a Stable-Baselines3 model archive ({exc})") from exc
     module = str(data.get("policy_class", {}).get("__module__", ""))
-    package, cls = next((v for k, v in ALGOS_BY_MODULE.items() if module.startswith(k)), ("stable_baselines3", "PPO"))
+    package, cls = next(
+        (v for k, v in ALGOS_BY_MODULE.items() if module.startswith(k)), ("stable_baselines3", "PPO")
+    )
     return getattr(importlib.import_module(package), cls)
 
 
-def load_sb3(model_zip: Path, vecnorm: Path | None = None, train_cfg: DictConfig | None = None,
-             deterministic: bool = True, seed: int = 0) -> tuple[SB3Policy, Any]:
+def load_sb3(
+    model_zip: Path,
+    vecnorm: Path | None = None,
+    train_cfg: DictConfig | None = None,
+    deterministic: bool = True,
+    seed: int = 0,
+) -> tuple[SB3Policy, Any]:
     """Load a saved SB3 model (and its VecNormalize statistics) as an :class:`SB3Policy`."""
     import pickle
 
@@ -109,12 +135,29 @@ def load_sb3(model_zip: Path, vecnorm: Path | None = None, train_cfg: DictConfig
     return SB3Policy(model, vn, deterministic=deterministic, seed=seed), model
 
 
-def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: str | None = None) -> LoadedPolicy:
-    cfg_path = next((p for p in (model_zip.parent / CONFIG_ARTIFACT, model_zip.parent.parent / CONFIG_ARTIFACT,
-                                 root / CONFIG_ARTIFACT) if p.is_file()), None)
+def _from_dir(
+    root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: str | None = None
+) -> LoadedPolicy:
+    cfg_path = next(
+        (
+            p
+            for p in (
+                model_zip.parent / CONFIG_ARTIFACT,
+                model_zip.parent.parent / CONFIG_ARTIFACT,
+                root / CONFIG_ARTIFACT,
+            )
+            if p.is_file()
+        ),
+        None,
+    )
     train_cfg = _train_config(cfg_path)
-    policy, model = load_sb3(model_zip, model_zip.parent / "vecnormalize.pkl", train_cfg,
-                             deterministic=eval_cfg.deterministic, seed=eval_cfg.seed)
+    policy, model = load_sb3(
+        model_zip,
+        model_zip.parent / "vecnormalize.pkl",
+        train_cfg,
+        deterministic=eval_cfg.deterministic,
+        seed=eval_cfg.seed,
+    )
     return LoadedPolicy(policy, label, run_id, train_cfg, model)
 
 
@@ -122,23 +165,29 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     import mlflow
     from mlflow.exceptions import MlflowException
 
+    from diana_lab.tracking.mlflow_run import resolve_uri
+
     uri = OmegaConf.select(cfg, "tracking.uri", default=None)
     if uri:
-        mlflow.set_tracking_uri(str(uri))
-    dst = Path(tempfile.mkdtemp(prefix=f"diana_eval_{run_id[:8]}_"))
-    try:
-        model_zip = Path(mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=MODEL_ARTIFACT,
-                                                             dst_path=str(dst)))
-    except (MlflowException, OSError) as exc:
-        raise UserError(f"policy={run_id}: could not fetch the artefact '{MODEL_ARTIFACT}' of MLflow run {run_id} "
-                        f"from tracking URI '{mlflow.get_tracking_uri()}' ({str(exc).splitlines()[0]}); check "
-                        "tracking.uri and that the run finished training") from exc
-    for extra in (VECNORM_ARTIFACT, CONFIG_ARTIFACT):
+        mlflow.set_tracking_uri(resolve_uri(str(uri)))
+    with tempfile.TemporaryDirectory(prefix=f"diana_eval_{run_id[:8]}_") as tmp:
+        dst = Path(tmp)  # everything is in memory once loaded: the download need not outlive this call
         try:
-            mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=extra, dst_path=str(dst))
-        except (MlflowException, OSError):
-            pass  # optional: a run without VecNormalize, or logged before the config was
-    return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
+            model_zip = Path(
+                mlflow.artifacts.download_artifacts(
+                    run_id=run_id, artifact_path=MODEL_ARTIFACT, dst_path=str(dst)
+                )
+            )
+        except (MlflowException, OSError) as exc:
+            raise UserError(
+                f"policy={run_id}: could not fetch the artefact '{MODEL_ARTIFACT}' of MLflow run {run_id} "
+                f"from tracking URI '{mlflow.get_tracking_uri()}' ({str(exc).splitlines()[0]}); check "
+                "tracking.uri and that the run finished training"
+            ) from exc
+        for extra in (VECNORM_ARTIFACT, CONFIG_ARTIFACT):  # optional: a run without VecNormalize, say
+            with contextlib.suppress(MlflowException, OSError):
+                mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=extra, dst_path=str(dst))
+        return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
 
 
 def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
@@ -151,9 +200,11 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     if spec == "pretrained":
         model_zip = PRETRAINED_DIR / "model.zip"
         if not model_zip.is_file():
-            raise UserError(f"policy=pretrained: the reference policy is not shipped yet (expected '{model_zip}'). "
-                            "Use policy=straight or policy=astar, a model file (policy=path/to/model.zip) or the "
-                            "MLflow run id of a training run.")
+            raise UserError(
+                f"policy=pretrained: the reference policy is not shipped yet (expected '{model_zip}'). "
+                "Use policy=straight or policy=astar, a model file (policy=path/to/model.zip) or the "
+                "MLflow run id of a training run."
+            )
         return _from_dir(PRETRAINED_DIR, model_zip, eval_cfg, "pretrained")
     path = Path(spec).expanduser()
     if path.is_dir():
@@ -162,9 +213,11 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_dir(path.parent, path.resolve(), eval_cfg, str(path))
     if RUN_ID.match(spec):
         return _from_run(spec, cfg, eval_cfg)
-    raise UserError(f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected 'straight', "
-                    "'astar', 'pretrained', the path of a Stable-Baselines3 .zip (with vecnormalize.pkl beside "
-                    "it if the run normalised observations) or an MLflow run id (32 hex digits).")
+    raise UserError(
+        f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected 'straight', "
+        "'astar', 'pretrained', the path of a Stable-Baselines3 .zip (with vecnormalize.pkl beside "
+        "it if the run normalised observations) or an MLflow run id (32 hex digits)."
+    )
 
 
 # ---------------------------------------------------------------------------------------------- space check
@@ -185,8 +238,11 @@ def _flat(node: Any, prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def config_differences(train_cfg: DictConfig | None, eval_cfg: DictConfig | None,
-                       groups: tuple[str, ...] = ("sensor", "world", "episode")) -> list[str]:
+def config_differences(
+    train_cfg: DictConfig | None,
+    eval_cfg: DictConfig | None,
+    groups: tuple[str, ...] = ("sensor", "world", "episode"),
+) -> list[str]:
     """``group.key: training X, here Y`` for the config keys that shape observations (when both are known)."""
     if train_cfg is None or eval_cfg is None:
         return []
@@ -200,23 +256,37 @@ def config_differences(train_cfg: DictConfig | None, eval_cfg: DictConfig | None
     return diffs
 
 
-def check_observation_space(model_space: spaces.Space, env_space: spaces.Space, label: str,
-                            hints: list[str] | None = None) -> None:
+def check_observation_space(
+    model_space: spaces.Space, env_space: spaces.Space, label: str, hints: list[str] | None = None
+) -> None:
     """Refuse a policy trained on other observations (keys, shapes, dtypes); bounds may differ (goal distance
     bounds follow the world size, and the policy only ever sees the clipped values)."""
     want, have = _shapes(model_space), _shapes(env_space)
     problems = []
     for k in sorted(set(want) | set(have)):
         if k not in have:
-            problems.append(f"the policy expects observation key '{k}' {want[k][0]}, which this env does not give")
+            problems.append(
+                f"the policy expects observation key '{k}' {want[k][0]}, which this env does not give"
+            )
         elif k not in want:
-            problems.append(f"this env gives observation key '{k}' {have[k][0]}, which the policy was not trained on")
+            problems.append(
+                f"this env gives observation key '{k}' {have[k][0]}, which the policy was not trained on"
+            )
         elif want[k] != have[k]:
-            problems.append(f"observation '{k}' is {want[k][0]} {want[k][1]} for the policy but {have[k][0]} "
-                            f"{have[k][1]} here")
+            problems.append(
+                f"observation '{k}' is {want[k][0]} {want[k][1]} for the policy but {have[k][0]} "
+                f"{have[k][1]} here"
+            )
     if problems:
-        hint = f" Differing config keys: {'; '.join(hints[:8])}." if hints else (
-            " Evaluate with the sensor settings the policy was trained with (sensor=..., sensor.encoding=..., "
-            "sensor.width/height).")
-        raise ConfigError(f"policy {label}: trained with other observation settings than this evaluation: "
-                          f"{'; '.join(problems)}.{hint}")
+        hint = (
+            f" Differing config keys: {'; '.join(hints[:8])}."
+            if hints
+            else (
+                " Evaluate with the sensor settings the policy was trained with (sensor=..., "
+                "sensor.encoding=..., sensor.width/height)."
+            )
+        )
+        raise ConfigError(
+            f"policy {label}: trained with other observation settings than this evaluation: "
+            f"{'; '.join(problems)}.{hint}"
+        )

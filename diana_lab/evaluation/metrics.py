@@ -25,12 +25,27 @@ Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 
 # the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``
 SUMMARY_KEYS = (
-    "episodes", "success_rate", "spl", "collision_rate", "tipover_rate", "timeout_rate", "stuck_rate",
-    "mean_path_length_m", "mean_sim_time_s", "mean_speed_mps", "mean_max_tilt_deg", "time_over_15deg_frac",
-    "mean_waypoints", "min_speed_mps",
+    "episodes",
+    "success_rate",
+    "spl",
+    "collision_rate",
+    "tipover_rate",
+    "timeout_rate",
+    "stuck_rate",
+    "mean_path_length_m",
+    "mean_sim_time_s",
+    "mean_speed_mps",
+    "mean_max_tilt_deg",
+    "time_over_15deg_frac",
+    "mean_waypoints",
+    "min_speed_mps",
 )
-RATE_OUTCOMES = {"collision_rate": "collision", "tipover_rate": "tipover", "timeout_rate": "timeout",
-                 "stuck_rate": "stuck"}
+RATE_OUTCOMES = {
+    "collision_rate": "collision",
+    "tipover_rate": "tipover",
+    "timeout_rate": "timeout",
+    "stuck_rate": "stuck",
+}
 
 
 def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
@@ -41,7 +56,10 @@ def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
     denom = 1.0 + z * z / n
     centre = (p + z * z / (2 * n)) / denom
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return max(0.0, centre - half), min(1.0, centre + half)
+    # exact ends at 0 and n successes (the formula gives them up to rounding: 5e-17 is not a rate)
+    lo = 0.0 if successes <= 0 else max(0.0, centre - half)
+    hi = 1.0 if successes >= n else min(1.0, centre + half)
+    return lo, hi
 
 
 def mean_ci(values: np.ndarray) -> tuple[float, tuple[float, float]]:

@@ -1,7 +1,8 @@
 """Plots of a suite: the driven paths over a hillshade of the terrain, and the tilt along each path.
 
-Figures are drawn on matplotlib's Agg canvas directly (``Figure`` + ``FigureCanvasAgg``), so plotting never
-switches the process-wide backend nor needs a display -- the training runner calls this in the middle of a run.
+Figures are drawn on matplotlib's Agg canvas directly (``Figure`` + ``FigureCanvasAgg``), so plotting
+never switches the process-wide backend nor needs a display: the training runner plots in the middle of a
+run.
 """
 
 from __future__ import annotations
@@ -21,8 +22,13 @@ from diana_lab.sim.world import World
 __all__ = ["OUTCOME_COLOURS", "plot_tilt", "plot_trajectories"]
 
 OUTCOME_COLOURS = {
-    "success": "#2ca02c", "collision": "#d62728", "tipover": "#9467bd", "stuck": "#ff7f0e",
-    "timeout": "#1f77b4", "out_of_bounds": "#8c564b", "sim_error": "#7f7f7f",
+    "success": "#2ca02c",
+    "collision": "#d62728",
+    "tipover": "#9467bd",
+    "stuck": "#ff7f0e",
+    "timeout": "#1f77b4",
+    "out_of_bounds": "#8c564b",
+    "sim_error": "#7f7f7f",
 }
 TILT_LIMIT_DEG = 15.0
 
@@ -33,8 +39,11 @@ def _colour(outcome: str) -> str:
 
 def _legend(outcomes: list[str]) -> list[Line2D]:
     counts = pd.Series(outcomes).value_counts()
-    return [Line2D([], [], color=_colour(o), lw=2, label=f"{o} ({counts[o]})") for o in OUTCOME_COLOURS
-            if o in counts]
+    return [
+        Line2D([], [], color=_colour(o), lw=2, label=f"{o} ({counts[o]})")
+        for o in OUTCOME_COLOURS
+        if o in counts
+    ]
 
 
 def _save(fig: Figure, path: Path) -> Path:
@@ -44,8 +53,9 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def plot_trajectories(world: World, df: pd.DataFrame, traces: list[EpisodeTrace], path: Path,
-                      title: str = "") -> Path:
+def plot_trajectories(
+    world: World, df: pd.DataFrame, traces: list[EpisodeTrace], path: Path, title: str = ""
+) -> Path:
     """Every episode's path over the terrain, coloured by outcome; squares mark starts, circles goals."""
     fig = Figure(figsize=(7.5, 7.0))
     ax = fig.add_subplot()
@@ -65,8 +75,13 @@ def plot_trajectories(world: World, df: pd.DataFrame, traces: list[EpisodeTrace]
     return _save(fig, path)
 
 
-def plot_tilt(df: pd.DataFrame, traces: list[EpisodeTrace], path: Path, tipover_deg: float | None = None,
-              title: str = "") -> Path:
+def plot_tilt(
+    df: pd.DataFrame,
+    traces: list[EpisodeTrace],
+    path: Path,
+    tipover_deg: float | None = None,
+    title: str = "",
+) -> Path:
     """Tilt against distance driven for every episode, with the 15-degree line and the tip-over limit."""
     fig = Figure(figsize=(8.0, 4.0))
     ax = fig.add_subplot()
@@ -78,7 +93,10 @@ def plot_tilt(df: pd.DataFrame, traces: list[EpisodeTrace], path: Path, tipover_
     top = max([float(np.max(t.tilt_deg)) for t in traces if len(t.tilt_deg)] + [TILT_LIMIT_DEG])
     ax.set(xlabel="distance driven (m)", ylabel="tilt (deg)", ylim=(0, max(top, tipover_deg or 0) * 1.08))
     ax.set_title(title or "tilt along the path")
-    ax.legend(handles=[*_legend(list(df["outcome"])), *ax.get_legend_handles_labels()[0]], fontsize=8,
-              loc="upper right")
+    ax.legend(
+        handles=[*_legend(list(df["outcome"])), *ax.get_legend_handles_labels()[0]],
+        fontsize=8,
+        loc="upper right",
+    )
     fig.tight_layout()
     return _save(fig, path)

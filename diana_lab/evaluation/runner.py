@@ -22,9 +22,25 @@ from diana_lab.planning import shortest_path_length
 __all__ = ["COLUMNS", "EpisodeTrace", "run_episodes", "run_suite"]
 
 COLUMNS = (
-    "episode", "start_x", "start_y", "start_yaw", "goal_x", "goal_y", "outcome", "success", "steps",
-    "path_length_m", "sim_time_s", "straight_distance_m", "shortest_path_m", "spl", "speed_mps",
-    "max_tilt_deg", "time_over_15deg_s", "final_distance_m", "return",
+    "episode",
+    "start_x",
+    "start_y",
+    "start_yaw",
+    "goal_x",
+    "goal_y",
+    "outcome",
+    "success",
+    "steps",
+    "path_length_m",
+    "sim_time_s",
+    "straight_distance_m",
+    "shortest_path_m",
+    "spl",
+    "speed_mps",
+    "max_tilt_deg",
+    "time_over_15deg_s",
+    "final_distance_m",
+    "return",
 )
 
 
@@ -43,8 +59,9 @@ class EpisodeTrace:
         return np.concatenate([[0.0], np.cumsum(steps)])
 
 
-def _episode(policy: Policy, env: gym.Env, spec: EpisodeSpec, index: int, frames: list | None,
-             frame_fn=None) -> tuple[dict, EpisodeTrace]:
+def _episode(
+    policy: Policy, env: gym.Env, spec: EpisodeSpec, index: int, frames: list | None, frame_fn=None
+) -> tuple[dict, EpisodeTrace]:
     base = env.unwrapped
     obs, info = env.reset(seed=spec.seed, options=spec.reset_options())
     policy.reset(env)
@@ -68,21 +85,35 @@ def _episode(policy: Policy, env: gym.Env, spec: EpisodeSpec, index: int, frames
     shortest = shortest_path_length(base.sampler.costmap, spec.start, spec.goal)
     path, sim_time = float(info["path_length"]), float(info["sim_time"])
     row = {
-        "episode": index, "start_x": float(spec.start[0]), "start_y": float(spec.start[1]),
-        "start_yaw": float(spec.yaw), "goal_x": float(spec.goal[0]), "goal_y": float(spec.goal[1]),
-        "outcome": outcome, "success": success, "steps": int(info["steps"]), "path_length_m": path,
-        "sim_time_s": sim_time, "straight_distance_m": straight, "shortest_path_m": float(shortest),
-        "spl": (shortest / max(path, shortest)) if success and math.isfinite(shortest) and shortest > 0 else 0.0,
+        "episode": index,
+        "start_x": float(spec.start[0]),
+        "start_y": float(spec.start[1]),
+        "start_yaw": float(spec.yaw),
+        "goal_x": float(spec.goal[0]),
+        "goal_y": float(spec.goal[1]),
+        "outcome": outcome,
+        "success": success,
+        "steps": int(info["steps"]),
+        "path_length_m": path,
+        "sim_time_s": sim_time,
+        "straight_distance_m": straight,
+        "shortest_path_m": float(shortest),
+        "spl": (shortest / max(path, shortest))
+        if success and math.isfinite(shortest) and shortest > 0
+        else 0.0,
         "speed_mps": straight / sim_time if success and sim_time > 0 else math.nan,
-        "max_tilt_deg": float(info["max_tilt_deg"]), "time_over_15deg_s": float(info["time_over_15deg_s"]),
-        "final_distance_m": float(info["distance_to_goal"]), "return": total,
+        "max_tilt_deg": float(info["max_tilt_deg"]),
+        "time_over_15deg_s": float(info["time_over_15deg_s"]),
+        "final_distance_m": float(info["distance_to_goal"]),
+        "return": total,
     }
     trace = EpisodeTrace(np.asarray(xy), np.asarray(tilt), np.asarray(wps).reshape(-1, 2))
     return row, trace
 
 
-def run_episodes(policy: Policy, env: gym.Env, suite: list[EpisodeSpec],
-                 video_path: Path | str | None = None) -> tuple[pd.DataFrame, list[EpisodeTrace]]:
+def run_episodes(
+    policy: Policy, env: gym.Env, suite: list[EpisodeSpec], video_path: Path | str | None = None
+) -> tuple[pd.DataFrame, list[EpisodeTrace]]:
     """Like :func:`run_suite`, also returning every episode's trace (for plots)."""
     rows, traces = [], []
     frames: list | None = None
@@ -105,8 +136,9 @@ def run_episodes(policy: Policy, env: gym.Env, suite: list[EpisodeSpec],
     return pd.DataFrame(rows, columns=list(COLUMNS)), traces
 
 
-def run_suite(policy: Policy, env: gym.Env, suite: list[EpisodeSpec],
-              video_path: Path | str | None = None) -> pd.DataFrame:
+def run_suite(
+    policy: Policy, env: gym.Env, suite: list[EpisodeSpec], video_path: Path | str | None = None
+) -> pd.DataFrame:
     """Run ``policy`` on every episode of ``suite``; one row per episode (columns: :data:`COLUMNS`).
 
     ``video_path``: write a GIF of the first episode there. ``path_length_m`` is the driven length,

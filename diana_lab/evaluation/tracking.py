@@ -47,24 +47,40 @@ def log_summary(summary: dict[str, Any], prefix: str = "eval_", step: int | None
     mlflow.log_metrics(metrics_of(summary, prefix), step=step)
 
 
-def log_evaluation(cfg: DictConfig, summaries: dict[str, dict[str, Any]], out_dir: Path,
-                   params: dict[str, Any], parent_run_id: str | None = None) -> str:
+def log_evaluation(
+    cfg: DictConfig,
+    summaries: dict[str, dict[str, Any]],
+    out_dir: Path,
+    params: dict[str, Any],
+    parent_run_id: str | None = None,
+) -> str:
     """Log an evaluation run (metrics of every summary, every file of ``out_dir``); returns its run id.
 
     ``summaries`` maps a metric prefix (``eval_``, or ``eval_noise_0.5_`` in a sweep) to its summary.
     """
     import mlflow
+    from mlflow.tracking import MlflowClient
+
+    from diana_lab.tracking.mlflow_run import resolve_uri, sqlite_path
 
     _, uri, experiment = tracking_settings(cfg)
     if uri:
-        mlflow.set_tracking_uri(uri)
+        mlflow.set_tracking_uri(resolve_uri(uri))
+    client = MlflowClient()
+    name = f"eval {params.get('policy', '')}".strip()
     if parent_run_id is not None:
-        experiment_id = mlflow.tracking.MlflowClient().get_run(parent_run_id).info.experiment_id
-        run = mlflow.start_run(experiment_id=experiment_id, parent_run_id=parent_run_id,
-                               run_name=f"eval {params.get('policy', '')}".strip())
+        experiment_id = client.get_run(parent_run_id).info.experiment_id
+        run = mlflow.start_run(experiment_id=experiment_id, parent_run_id=parent_run_id, run_name=name)
     else:
-        mlflow.set_experiment(experiment)
-        run = mlflow.start_run(run_name=f"eval {params.get('policy', '')}".strip())
+        found = client.get_experiment_by_name(experiment)
+        if found is not None:
+            experiment_id = found.experiment_id
+        else:  # artefacts beside an SQLite store, as the training runs keep them
+            db = sqlite_path(mlflow.get_tracking_uri())
+            experiment_id = client.create_experiment(
+                experiment, artifact_location=(db.parent / "mlruns").as_uri() if db is not None else None
+            )
+        run = mlflow.start_run(experiment_id=experiment_id, run_name=name)
     with run:
         mlflow.set_tag("diana_lab.kind", "evaluation")
         mlflow.log_params({k: str(v)[:500] for k, v in params.items()})

@@ -27,8 +27,15 @@ from diana_lab.config.validation import ConfigError
 from diana_lab.sensing.frame import SensorFrame
 from diana_lab.sensing.transforms import leveling_matrix
 
-__all__ = ["NO_RETURN", "UNKNOWN_HEIGHT", "DepthImageEncoder", "ElevationMapEncoder", "Encoder",
-           "PointsEncoder", "make_encoder"]
+__all__ = [
+    "NO_RETURN",
+    "UNKNOWN_HEIGHT",
+    "DepthImageEncoder",
+    "ElevationMapEncoder",
+    "Encoder",
+    "PointsEncoder",
+    "make_encoder",
+]
 
 NO_RETURN = 1.0  # depth_image value of a pixel without a return
 UNKNOWN_HEIGHT = 0.0  # elevation_map height of a cell without points (its mask channel is 0)
@@ -36,7 +43,7 @@ UNKNOWN_HEIGHT = 0.0  # elevation_map height of a cell without points (its mask 
 
 def _cloud(points: np.ndarray) -> o3d.geometry.PointCloud:
     # the legacy point cloud: its voxel grid and farthest-point sampling are 5x and 40x faster than the
-    # tensor API's on clouds of a few thousand points (measured with open3d 0.19/0.20 on one core)
+    # tensor API's on clouds of a few thousand points (measured with open3d 0.20 on one core)
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
 
 
@@ -133,7 +140,7 @@ class PointsEncoder(Encoder):
             return pts
         if self.cfg.method == "fps":
             return _positions(_cloud(pts).farthest_point_down_sample(n))
-        return pts[(np.arange(n) * len(pts)) // n]  # evenly spread over the (row-major) cloud
+        return pts[(np.arange(n) * len(pts)) // n]  # an even, deterministic stride through the cloud
 
     def __call__(self, frame: SensorFrame) -> np.ndarray:
         pts = self.select(frame.points)
@@ -152,5 +159,6 @@ def make_encoder(cfg: SensorConfig, image_shape: tuple[int, int], axis_cos: np.n
         return ElevationMapEncoder(cfg.elevation_map)
     if cfg.encoding == "points":
         return PointsEncoder(cfg.points, cfg.max_range + float(np.linalg.norm(cfg.mount_xyz)))
-    raise ConfigError(f"sensor.encoding: expected one of 'depth_image', 'elevation_map', 'points', "
-                     f"got {cfg.encoding!r}")
+    raise ConfigError(
+        f"sensor.encoding: expected one of 'depth_image', 'elevation_map', 'points', got {cfg.encoding!r}"
+    )

@@ -54,19 +54,42 @@ class NoiseParams:
         return any(getattr(self, k) > 0 for k in SCALED)
 
 
-SCALED = ("range_std", "range_std_per_m", "range_scale_std", "quantization", "dropout", "patch_rate",
-          "spurious")
+SCALED = (
+    "range_std",
+    "range_std_per_m",
+    "range_scale_std",
+    "quantization",
+    "dropout",
+    "patch_rate",
+    "spurious",
+)
 
 PRESETS: dict[str, NoiseParams] = {
     "none": NoiseParams(),
     # an outdoor RGB-D camera / lidar on a good day: ~2 cm at 2 m, ~6 cm at 10 m, 1 % drop-outs
-    "realistic": NoiseParams(range_std=0.01, range_std_per_m=0.005, range_scale_std=0.005, quantization=0.005,
-                             dropout=0.01, patch_rate=0.2, patch_radius=0.08, spurious=0.001,
-                             spurious_max_range=1.0),
+    "realistic": NoiseParams(
+        range_std=0.01,
+        range_std_per_m=0.005,
+        range_scale_std=0.005,
+        quantization=0.005,
+        dropout=0.01,
+        patch_rate=0.2,
+        patch_radius=0.08,
+        spurious=0.001,
+        spurious_max_range=1.0,
+    ),
     # dusty, low sun: large errors, frequent glare patches and dust returns
-    "harsh": NoiseParams(range_std=0.02, range_std_per_m=0.015, range_scale_std=0.02, quantization=0.02,
-                         dropout=0.05, patch_rate=1.0, patch_radius=0.12, spurious=0.01,
-                         spurious_max_range=2.0),
+    "harsh": NoiseParams(
+        range_std=0.02,
+        range_std_per_m=0.015,
+        range_scale_std=0.02,
+        quantization=0.02,
+        dropout=0.05,
+        patch_rate=1.0,
+        patch_radius=0.12,
+        spurious=0.01,
+        spurious_max_range=2.0,
+    ),
 }
 
 
@@ -75,7 +98,8 @@ class NoiseModel:
 
     def __init__(self, preset: str, level: float, image_shape: tuple[int, int], min_range: float) -> None:
         if preset not in PRESETS:
-            raise ConfigError(f"sensor.noise: expected one of {', '.join(map(repr, PRESETS))}, got {preset!r}")
+            names = ", ".join(map(repr, PRESETS))
+            raise ConfigError(f"sensor.noise: expected one of {names}, got {preset!r}")
         self.params = PRESETS[preset].scaled(level)
         self.image_shape = image_shape
         self.min_range = float(min_range)
@@ -91,21 +115,23 @@ class NoiseModel:
     def reset(self, rng: np.random.Generator) -> None:
         """Start an episode: take the generator and draw the per-episode calibration error."""
         self.rng = rng
-        self.scale = 1.0 + rng.normal(0.0, self.params.range_scale_std) if self.params.range_scale_std else 1.0
+        std = self.params.range_scale_std
+        self.scale = 1.0 + float(rng.normal(0.0, std)) if std > 0 else 1.0
 
     def apply(self, t: np.ndarray) -> np.ndarray:
-        """Noisy copy of the hit distances ``t`` (``(H*W,)``, ``inf`` = no hit; ``inf`` marks lost returns)."""
+        """Noisy copy of the hit distances ``t`` (``(H*W,)``; ``inf`` = no hit, and marks lost returns)."""
         p, rng = self.params, self.rng
         r = np.array(t, dtype=np.float32, copy=True)
         n = r.size
-        hit = np.isfinite(r)
+        hit = np.flatnonzero(np.isfinite(r))
+        rh = r[hit]
         if self.scale != 1.0:
-            r[hit] *= self.scale
+            rh *= self.scale
         if p.range_std or p.range_std_per_m:
-            rh = r[hit]
-            r[hit] = rh + rng.standard_normal(rh.size, dtype=np.float32) * (p.range_std + p.range_std_per_m * rh)
+            rh += rng.standard_normal(rh.size, dtype=np.float32) * (p.range_std + p.range_std_per_m * rh)
         if p.quantization:
-            r[hit] = np.round(r[hit] / p.quantization) * p.quantization
+            rh = np.round(rh / p.quantization) * p.quantization
+        r[hit] = rh
         if p.dropout:
             r[rng.random(n, dtype=np.float32) < p.dropout] = np.inf
         if p.patch_rate:

@@ -12,7 +12,6 @@ casting, range limits, noise, encoding, pickling) is shared. The env's calls:
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 from gymnasium import spaces
@@ -79,22 +78,27 @@ class RaySensor:
 
     def capture(self, position: np.ndarray, rpy: np.ndarray) -> SensorFrame:
         """Cast every ray from the rover pose; noise (if configured) draws from the generator of ``reset``."""
-        position = np.asarray(position, dtype=np.float64)
+        position = np.array(position, dtype=np.float64)  # copies: the frame keeps the pose it was taken at
+        rpy = np.array(rpy, dtype=np.float64)
         rotation = rpy_matrix(rpy)
         t = self.caster.cast(position + rotation @ self.mount, rotation)
         if self.noise.active:
             t = self.noise.apply(t)
         # NaN outside [min_range, max_range]; ``inf`` (no hit) fails the test too, so no fake max-range hit
         ranges = np.where((t >= self.cfg.min_range) & (t <= self.cfg.max_range), t, np.float32(np.nan))
-        return SensorFrame(ranges.reshape(self.image_shape), position, np.asarray(rpy, dtype=np.float64),
-                           self.caster.directions, self._mount32, self.axis_cos)
+        return SensorFrame(
+            ranges.reshape(self.image_shape),
+            position,
+            rpy,
+            self.caster.directions,
+            self._mount32,
+            self.axis_cos,
+        )
 
     def encode(self, frame: SensorFrame) -> np.ndarray:
         """The configured encoding of a frame: float32, finite, inside :attr:`observation_space`."""
         return self.encoder(frame)
 
     def observe(self, position: np.ndarray, rpy: np.ndarray) -> np.ndarray:
+        """``encode(capture(position, rpy))``. Pickling the sensor is safe: the caster drops its scene."""
         return self.encoder(self.capture(position, rpy))
-
-    def __getstate__(self) -> dict[str, Any]:
-        return self.__dict__.copy()  # the caster drops its open3d scene itself

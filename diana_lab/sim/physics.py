@@ -42,8 +42,14 @@ PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
 
 GRAVITY = 9.81
 WHEEL_LATERAL_FRICTION = 0.5  # friction along the wheel axle relative to the rolling direction (see above)
+# Reflected inertia of the geared drive motors at the wheel axle, as a fraction of (mass per wheel) x r^2.
+# Real: rotor inertia x gear ratio^2 (e.g. 2e-5 kg m^2 x 78^2 = 0.12 kg m^2 for a Husky wheel). Needed too:
+# PyBullet's velocity motors are not warm-started while contact friction is, so with a bare wheel's inertia
+# they do not converge within ~10 solver iterations when a loaded wheel must break static friction, and the
+# rover stalls on uneven ground (on a diagonal wheel pair) with its motors far below their torque limit.
+DRIVE_INERTIA = 0.3
 CHASSIS_FRICTION = 0.8  # a high-centred chassis scrapes: a bit less grip than a tyre
-SPAWN_CLEARANCE = 0.02  # m between the wheels' lowest point and the highest terrain under the footprint at spawn
+SPAWN_CLEARANCE = 0.02  # m from the wheels' lowest point to the highest terrain under the footprint at spawn
 CONTACT_BREAKING_THRESHOLD = 0.005  # m; Bullet's 0.02 keeps stale points of rolling wheels (slower, stickier)
 MAX_SPEED = 20.0  # m/s: anything faster is a blown-up simulation
 MAX_SPIN = 50.0  # rad/s of the base
@@ -57,25 +63,32 @@ class PhysicsDynamics:
 
     def __init__(self, cfg: PhysicsConfig, world: World, robot: RobotConfig, *, gui: bool = False) -> None:
         self.cfg, self.world, self.robot = cfg, world, robot
-        self.scene = PybulletScene(world, robot, gui=gui)
-        self._client = c = self.scene.client
-        self._body = self.scene.robot_id
+        self._scene = PybulletScene(world, robot, gui=gui)
+        self._client = c = self._scene.client
+        self._body = self._scene.robot_id
         self._steps_per_tick = max(1, round(1.0 / (cfg.controller.rate_hz * cfg.time_step)))
         self._tick = self._steps_per_tick * cfg.time_step
         pb.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
-        pb.setPhysicsEngineParameter(fixedTimeStep=cfg.time_step, numSubSteps=0,
-                                     numSolverIterations=int(cfg.solver_iterations), enableConeFriction=0,
-                                     deterministicOverlappingPairs=1,
-                                     contactBreakingThreshold=CONTACT_BREAKING_THRESHOLD, physicsClientId=c)
+        pb.setPhysicsEngineParameter(
+            fixedTimeStep=cfg.time_step,
+            numSubSteps=0,
+            numSolverIterations=int(cfg.solver_iterations),
+            enableConeFriction=0,
+            deterministicOverlappingPairs=1,
+            contactBreakingThreshold=CONTACT_BREAKING_THRESHOLD,
+            physicsClientId=c,
+        )
         self._set_friction()
-        self._wheels = list(self.scene.wheel_indices)
-        self._n_left = len(self.scene.wheels_left)
+        self._add_drive_inertia()
+        self._wheels = list(self._scene.wheel_indices)
+        self._n_left = len(self._scene.wheels_left)
         self._torques = [float(robot.max_wheel_torque)] * len(self._wheels)
-        self._obstacles = {bid: i for i, bid in enumerate(self.scene.obstacle_ids)}
+        self._obstacles = {bid: i for i, bid in enumerate(self._scene.obstacle_ids)}
         if world.obstacles:  # bounding circles (xy) for the cheap "is an obstacle close?" test
             self._ob_xy = np.array([ob.centre[:2] for ob in world.obstacles])
-            self._ob_r = np.array([np.max(np.linalg.norm(ob.vertices[:, :2] - ob.centre[:2], axis=1))
-                                   for ob in world.obstacles])
+            self._ob_r = np.array(
+                [np.max(np.linalg.norm(ob.vertices[:, :2] - ob.centre[:2], axis=1)) for ob in world.obstacles]
+            )
         self._time = 0.0
         self._bounds = world.bounds
         # below the lowest terrain point by this much: fell through the heightfield (tunnelling)
@@ -84,26 +97,64 @@ class PhysicsDynamics:
     # ------------------------------------------------------------------ set-up
     def _set_friction(self) -> None:
         c, body = self._client, self._body
-        for bid in (self.scene.terrain_id, *self.scene.obstacle_ids):
-            pb.changeDynamics(bid, -1, lateralFriction=float(self.cfg.friction), rollingFriction=0.0,
-                              spinningFriction=0.0, restitution=0.0, physicsClientId=c)
-        wheels = set(self.scene.wheel_indices)
+        for bid in (self._scene.terrain_id, *self._scene.obstacle_ids):
+            pb.changeDynamics(
+                bid,
+                -1,
+                lateralFriction=float(self.cfg.friction),
+                rollingFriction=0.0,
+                spinningFriction=0.0,
+                restitution=0.0,
+                physicsClientId=c,
+            )
+        wheels = set(self._scene.wheel_indices)
         for link in range(-1, pb.getNumJoints(body, physicsClientId=c)):
             if link in wheels:
-                axis = np.abs(np.asarray(pb.getJointInfo(body, link, physicsClientId=c)[13], dtype=float))
-                axis /= max(float(np.linalg.norm(axis)), 1e-9)
+                axis = np.abs(self._axle(link))
                 aniso = (1.0 - (1.0 - WHEEL_LATERAL_FRICTION) * axis).tolist()  # lower along the axle only
-                pb.changeDynamics(body, link, lateralFriction=1.0, anisotropicFriction=aniso, rollingFriction=0.0,
-                                  spinningFriction=0.0, restitution=0.0, physicsClientId=c)
+                pb.changeDynamics(
+                    body,
+                    link,
+                    lateralFriction=1.0,
+                    anisotropicFriction=aniso,
+                    rollingFriction=0.0,
+                    spinningFriction=0.0,
+                    restitution=0.0,
+                    physicsClientId=c,
+                )
             else:
-                pb.changeDynamics(body, link, lateralFriction=CHASSIS_FRICTION, restitution=0.0,
-                                  physicsClientId=c)
+                pb.changeDynamics(
+                    body, link, lateralFriction=CHASSIS_FRICTION, restitution=0.0, physicsClientId=c
+                )
+
+    def _axle(self, link: int) -> np.ndarray:
+        """Unit wheel axle in the link's inertial frame (Bullet's frame for its inertia and friction axes)."""
+        c, body = self._client, self._body
+        axis = np.asarray(pb.getJointInfo(body, link, physicsClientId=c)[13], dtype=float)  # link frame
+        frame = pb.getDynamicsInfo(body, link, physicsClientId=c)[4]
+        axis = np.asarray(pb.getMatrixFromQuaternion(frame)).reshape(3, 3).T @ axis
+        return axis / max(float(np.linalg.norm(axis)), 1e-9)
+
+    def _add_drive_inertia(self) -> None:
+        """Scale each wheel's inertia so that its axle inertia is at least ``DRIVE_INERTIA`` (see above)."""
+        c, body, r = self._client, self._body, self.robot
+        target = DRIVE_INERTIA * r.mass / len(self._scene.wheel_indices) * r.wheel_radius**2
+        for link in self._scene.wheel_indices:
+            inertia = np.asarray(pb.getDynamicsInfo(body, link, physicsClientId=c)[2], dtype=float)
+            about_axle = float(inertia @ self._axle(link) ** 2)
+            if 0.0 < about_axle < target:  # uniform scaling keeps the tensor physically valid
+                pb.changeDynamics(
+                    body,
+                    link,
+                    localInertiaDiagonal=(inertia * target / about_axle).tolist(),
+                    physicsClientId=c,
+                )
 
     # ------------------------------------------------------------------ state
     @property
     def state(self) -> RoverState:
         """Ground truth of the base link (velocities are those of the base's centre of mass, world frame)."""
-        pos, rpy, lin, ang = self.scene.base_state()
+        pos, rpy, lin, ang = self._scene.base_state()
         return RoverState(pos, rpy, lin, ang, self._time)
 
     def _drive(self, v: float, w: float) -> None:
@@ -112,13 +163,21 @@ class PhysicsDynamics:
         r = self.robot.wheel_radius
         left, right = (v - half) / r, (v + half) / r
         targets = [left] * self._n_left + [right] * (len(self._wheels) - self._n_left)
-        pb.setJointMotorControlArray(self._body, self._wheels, pb.VELOCITY_CONTROL, targetVelocities=targets,
-                                     forces=self._torques, physicsClientId=self._client)
+        pb.setJointMotorControlArray(
+            self._body,
+            self._wheels,
+            pb.VELOCITY_CONTROL,
+            targetVelocities=targets,
+            forces=self._torques,
+            physicsClientId=self._client,
+        )
 
     def _footprint_heights(self, x: float, y: float, yaw: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Body-frame sample points of the footprint and the terrain heights under them."""
         r = self.robot
-        bx, by = np.meshgrid(np.linspace(-r.length / 2, r.length / 2, 7), np.linspace(-r.width / 2, r.width / 2, 5))
+        bx, by = np.meshgrid(
+            np.linspace(-r.length / 2, r.length / 2, 7), np.linspace(-r.width / 2, r.width / 2, 5)
+        )
         bx, by = bx.ravel(), by.ravel()
         c, s = math.cos(yaw), math.sin(yaw)
         return bx, by, self.world.height(x + c * bx - s * by, y + s * bx + c * by)
@@ -141,15 +200,16 @@ class PhysicsDynamics:
         # lift so that the tilted footprint plane clears every sample, then stand on the wheels
         lift = float(np.max(hz - (a + b * bx + cc * by)))
         z = a + lift + self.robot.base_height / norm + SPAWN_CLEARANCE
-        self.scene.set_pose([x, y, z], [roll, pitch, yaw])
+        self._scene.set_pose([x, y, z], [roll, pitch, yaw])
         self._drive(0.0, 0.0)
-        for _ in range(int(round(self.cfg.settle_time_s / self.cfg.time_step))):
+        for _ in range(round(self.cfg.settle_time_s / self.cfg.time_step)):
             pb.stepSimulation(physicsClientId=self._client)
         self._time = 0.0
         return self.state
 
-    def execute(self, waypoint: np.ndarray, controller: TurnThenDrive,
-                pose_estimate: PoseEstimate | None = None) -> WaypointResult:
+    def execute(
+        self, waypoint: np.ndarray, controller: TurnThenDrive, pose_estimate: PoseEstimate | None = None
+    ) -> WaypointResult:
         """Drive to ``waypoint`` with the closed-loop controller until it is reached or something fails.
 
         The loop body runs once per control period; it stays in plain Python floats (no small numpy arrays),
@@ -178,7 +238,7 @@ class PhysicsDynamics:
             self._drive(cmd.linear, cmd.angular)
             try:
                 hit = self._step_tick(x, y)
-                pos, orn = self.scene.base_pose()
+                pos, orn = self._scene.base_pose()
                 lin, ang = pb.getBaseVelocity(self._body, physicsClientId=self._client)
                 rpy = pb.getEulerFromQuaternion(orn)
             except pb.error as exc:
@@ -204,27 +264,35 @@ class PhysicsDynamics:
                 outcome, detail = "stuck", f"moved {progress:.2f} m in {elapsed - anchor_t:.1f} s"
                 break
             if pose_estimate:
-                est_xy, est_yaw = pose_estimate(RoverState(np.array(pos), np.array(rpy), np.array(lin),
-                                                           np.array(ang), self._time))
+                est_xy, est_yaw = pose_estimate(
+                    RoverState(np.array(pos), np.array(rpy), np.array(lin), np.array(ang), self._time)
+                )
             else:
                 est_xy, est_yaw = (x, y), yaw
         self._drive(0.0, 0.0)  # hold the wheels until the next command
         rp = np.column_stack([rolls, pitches])
-        return WaypointResult(outcome, elapsed, length, np.column_stack([xs, ys]),
-                              np.asarray(tilt_deg(rp[:, 0], rp[:, 1]), dtype=float), rp, detail)
+        return WaypointResult(
+            outcome,
+            elapsed,
+            length,
+            np.column_stack([xs, ys]),
+            np.asarray(tilt_deg(rp[:, 0], rp[:, 1]), dtype=float),
+            rp,
+            detail,
+        )
 
     def _step_tick(self, x: float, y: float) -> str:
         """Advance one control period; returns the name of an obstacle touched ('' if none).
 
-        Contacts are looked up every physics step, but only while an obstacle's bounding circle is within reach
-        of the rover this tick (a glancing touch can be shorter than a control period); otherwise never.
+        Contacts are looked up every physics step, but only while an obstacle's bounding circle is within
+        reach of the rover this tick (a glancing touch can be shorter than a control period); else never.
         """
         c = self._client
         near: list[int] = []
         if self._obstacles:
             reach = self.robot.radius + 1.0  # generous: the rover moves < 1 m per control period
             d = np.hypot(self._ob_xy[:, 0] - x, self._ob_xy[:, 1] - y) - self._ob_r
-            near = [self.scene.obstacle_ids[i] for i in np.flatnonzero(d < reach)]
+            near = [self._scene.obstacle_ids[i] for i in np.flatnonzero(d < reach)]
         for _ in range(self._steps_per_tick):
             pb.stepSimulation(physicsClientId=c)
             for bid in near:
@@ -232,8 +300,14 @@ class PhysicsDynamics:
                     return self.world.obstacles[self._obstacles[bid]].name
         return ""
 
-    def _check(self, pos: tuple[float, ...], rpy: tuple[float, ...], lin: tuple[float, ...],
-               ang: tuple[float, ...], hit: str) -> tuple[Outcome | None, str]:
+    def _check(
+        self,
+        pos: tuple[float, ...],
+        rpy: tuple[float, ...],
+        lin: tuple[float, ...],
+        ang: tuple[float, ...],
+        hit: str,
+    ) -> tuple[Outcome | None, str]:
         """The failure (if any) of the state after a control period, most fundamental first."""
         values = (*pos, *rpy, *lin, *ang)
         if not all(math.isfinite(v) for v in values):
@@ -254,8 +328,12 @@ class PhysicsDynamics:
         return None, ""
 
     # ------------------------------------------------------------------ life cycle
+    def scene(self) -> PybulletScene:
+        """The PyBullet scene being simulated (the renderer draws it; same call as the kinematic model's)."""
+        return self._scene
+
     def close(self) -> None:
-        self.scene.close()
+        self._scene.close()
 
     def __enter__(self) -> PhysicsDynamics:
         return self

@@ -1,6 +1,6 @@
 """One PyBullet client holding the static scene of a :class:`World` and one rover loaded from its URDF.
 
-Both dynamics use it: the physics model steps it, the kinematic model only poses the rover in it for rendering.
+Both dynamics use it: the physics model steps it, the kinematic model only poses the rover in it (rendering).
 What this module settles, once:
 
 * The terrain is a ``GEOM_HEIGHTFIELD`` built straight from ``terrain.heights`` (row-major ``[iy, ix]``, so
@@ -43,7 +43,7 @@ __all__ = ["ASSETS", "PybulletScene", "resolve_urdf"]
 
 
 def resolve_urdf(spec: str) -> Path:
-    """``package:<path>`` -> ``diana_lab/assets/<path>``, ``pybullet_data:<path>`` -> PyBullet's data, else a path."""
+    """``package:<p>`` -> ``diana_lab/assets/<p>``, ``pybullet_data:<p>`` -> PyBullet's data, else a path."""
     if spec.startswith("package:"):
         path = ASSETS / spec.removeprefix("package:")
     elif spec.startswith("pybullet_data:"):
@@ -83,12 +83,16 @@ def _want_gui(gui: bool) -> bool:
 
 
 class PybulletScene:
-    """The static world and the rover in their own PyBullet client (``DIRECT`` unless ``gui`` and a display)."""
+    """The static world and the rover in their own PyBullet client (``DIRECT`` unless ``gui`` + a display)."""
 
     def __init__(self, world: World, robot: RobotConfig, *, gui: bool = False) -> None:
         self.world, self.robot = world, robot
+        self._closed = True
         self.gui = _want_gui(gui)
-        self.client = pb.connect(pb.GUI if self.gui else pb.DIRECT)
+        self.client = pb.connect(pb.GUI) if self.gui else -1
+        if self.client < 0:  # no GUI wanted, or PyBullet refused one (it allows one GUI per process)
+            self.gui = False
+            self.client = pb.connect(pb.DIRECT)
         if self.client < 0:
             raise RuntimeError("PyBullet: could not connect a physics client")
         self._closed = False
@@ -97,7 +101,7 @@ class PybulletScene:
             if self.gui:
                 pb.configureDebugVisualizer(pb.COV_ENABLE_GUI, 0, physicsClientId=self.client)
             self.terrain_id = self._add_terrain()
-            self.obstacle_ids: tuple[int, ...] = tuple(self._add_obstacle(i) for i in range(len(world.obstacles)))
+            self.obstacle_ids = tuple(self._add_obstacle(i) for i in range(len(world.obstacles)))
             self.robot_id = self._load_robot()
             self.joints = self._joint_table()
             self.wheels_left = self._wheel_indices("robot.wheel_joints_left", robot.wheel_joints_left)
@@ -116,11 +120,19 @@ class PybulletScene:
         t = self.world.terrain
         ny, nx = t.shape
         shape = pb.createCollisionShape(
-            pb.GEOM_HEIGHTFIELD, meshScale=[t.dx, t.dy, 1.0], heightfieldData=t.heights.ravel().tolist(),
-            numHeightfieldRows=nx, numHeightfieldColumns=ny, physicsClientId=self.client,
+            pb.GEOM_HEIGHTFIELD,
+            meshScale=[t.dx, t.dy, 1.0],
+            heightfieldData=t.heights.ravel().tolist(),
+            numHeightfieldRows=nx,
+            numHeightfieldColumns=ny,
+            physicsClientId=self.client,
         )
-        body = pb.createMultiBody(0, shape, basePosition=[0.0, 0.0, 0.5 * (t.max_height + t.min_height)],
-                                  physicsClientId=self.client)
+        body = pb.createMultiBody(
+            0,
+            shape,
+            basePosition=[0.0, 0.0, 0.5 * (t.max_height + t.min_height)],
+            physicsClientId=self.client,
+        )
         pb.changeVisualShape(body, -1, rgbaColor=[0.76, 0.45, 0.28, 1.0], physicsClientId=self.client)
         return body
 
@@ -132,10 +144,20 @@ class PybulletScene:
         if ob.convex:
             shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=local, physicsClientId=self.client)
         else:
-            shape = pb.createCollisionShape(pb.GEOM_MESH, vertices=local, indices=indices,
-                                            flags=pb.GEOM_FORCE_CONCAVE_TRIMESH, physicsClientId=self.client)
-        visual = pb.createVisualShape(pb.GEOM_MESH, vertices=local, indices=indices,
-                                      rgbaColor=[0.45, 0.40, 0.36, 1.0], physicsClientId=self.client)
+            shape = pb.createCollisionShape(
+                pb.GEOM_MESH,
+                vertices=local,
+                indices=indices,
+                flags=pb.GEOM_FORCE_CONCAVE_TRIMESH,
+                physicsClientId=self.client,
+            )
+        visual = pb.createVisualShape(
+            pb.GEOM_MESH,
+            vertices=local,
+            indices=indices,
+            rgbaColor=[0.45, 0.40, 0.36, 1.0],
+            physicsClientId=self.client,
+        )
         return pb.createMultiBody(0, shape, visual, basePosition=centre.tolist(), physicsClientId=self.client)
 
     def _load_robot(self) -> int:
@@ -161,11 +183,14 @@ class PybulletScene:
         for name in names:
             if name not in self.joints:
                 movable = sorted(n for n, (_, kind) in self.joints.items() if kind != pb.JOINT_FIXED)
-                raise ConfigError(f"{key}: joint '{name}' is not in '{self.robot.urdf}'; "
-                                  f"its movable joints are {', '.join(movable) or '(none)'}")
+                raise ConfigError(
+                    f"{key}: joint '{name}' is not in '{self.robot.urdf}'; "
+                    f"its movable joints are {', '.join(movable) or '(none)'}"
+                )
             j, kind = self.joints[name]
             if kind != pb.JOINT_REVOLUTE:
-                raise ConfigError(f"{key}: joint '{name}' in '{self.robot.urdf}' is not a revolute/continuous joint")
+                urdf = self.robot.urdf
+                raise ConfigError(f"{key}: joint '{name}' in '{urdf}' is not revolute or continuous")
             indices.append(j)
         return tuple(indices)
 
@@ -173,18 +198,38 @@ class PybulletScene:
         if not all(name in self.joints for name in DIFFERENTIAL_JOINTS):
             return None
         left, right = (self.joints[name][0] for name in DIFFERENTIAL_JOINTS)
-        cid = pb.createConstraint(self.robot_id, left, self.robot_id, right, pb.JOINT_GEAR, [0, 1, 0],
-                                  [0, 0, 0], [0, 0, 0], physicsClientId=self.client)
-        pb.changeConstraint(cid, gearRatio=1.0, maxForce=DIFFERENTIAL_MAX_TORQUE, erp=DIFFERENTIAL_ERP,
-                            physicsClientId=self.client)
+        cid = pb.createConstraint(
+            self.robot_id,
+            left,
+            self.robot_id,
+            right,
+            pb.JOINT_GEAR,
+            [0, 1, 0],
+            [0, 0, 0],
+            [0, 0, 0],
+            physicsClientId=self.client,
+        )
+        pb.changeConstraint(
+            cid,
+            gearRatio=1.0,
+            maxForce=DIFFERENTIAL_MAX_TORQUE,
+            erp=DIFFERENTIAL_ERP,
+            physicsClientId=self.client,
+        )
         return cid
 
     def _free_passive_joints(self) -> None:
         wheels = set(self.wheels_left) | set(self.wheels_right)
         for j, kind in self.joints.values():
             if kind != pb.JOINT_FIXED and j not in wheels:
-                pb.setJointMotorControl2(self.robot_id, j, pb.VELOCITY_CONTROL, targetVelocity=0.0, force=0.0,
-                                         physicsClientId=self.client)
+                pb.setJointMotorControl2(
+                    self.robot_id,
+                    j,
+                    pb.VELOCITY_CONTROL,
+                    targetVelocity=0.0,
+                    force=0.0,
+                    physicsClientId=self.client,
+                )
 
     # ------------------------------------------------------------------ queries and poses
     @property
@@ -211,7 +256,7 @@ class PybulletScene:
         return pb.multiplyTransforms(pos, orn, *self._base_in_com)
 
     def base_state(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(position, rpy, linear velocity, angular velocity)`` of the base (velocities of its centre of mass)."""
+        """``(position, rpy, linear, angular velocity)`` of the base (velocities of its centre of mass)."""
         pos, orn = self.base_pose()
         lin, ang = pb.getBaseVelocity(self.robot_id, physicsClientId=self.client)
         return np.array(pos), np.array(pb.getEulerFromQuaternion(orn)), np.array(lin), np.array(ang)
@@ -231,4 +276,3 @@ class PybulletScene:
     def __del__(self) -> None:  # a forgotten scene must not leak a physics server
         with contextlib.suppress(Exception):
             self.close()
-

@@ -39,7 +39,7 @@ class ProgressWithStats(ProgressBarCallback):
         fps = (self.model.num_timesteps - self._n0) / elapsed
         buf = self.model.ep_success_buffer
         success = f"{np.mean(buf):.0%}" if len(buf) else "-"
-        return f"{fps:.0f} steps/s | success {success}"
+        return f"{fps:.0f} fps, success {success}"
 
     def close(self) -> None:
         """Close the bar when training ends early (an interrupt skips ``_on_training_end``)."""

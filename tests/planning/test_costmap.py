@@ -8,38 +8,8 @@ import pytest
 from diana_lab.config import ConfigError
 from diana_lab.planning import CostMapConfig, build_costmap
 from diana_lab.sim.terrain import Terrain
-from diana_lab.sim.world import Obstacle, World
-
-
-def box(x0: float, x1: float, y0: float, y1: float, height: float, name: str = "box") -> Obstacle:
-    """A closed axis-aligned box standing on z = 0."""
-    v = np.array([[x, y, z] for z in (0.0, height) for y in (y0, y1) for x in (x0, x1)], dtype=float)
-    t = [
-        [0, 2, 1],
-        [1, 2, 3],
-        [4, 5, 6],
-        [5, 7, 6],
-        [0, 1, 4],
-        [1, 5, 4],
-        [2, 6, 3],
-        [3, 6, 7],
-        [0, 4, 2],
-        [2, 4, 6],
-        [1, 3, 5],
-        [3, 7, 5],
-    ]
-    return Obstacle(v, np.array(t), name=name)
-
-
-def flat_world(size: float = 20.0, spacing: float = 0.2, obstacles: list[Obstacle] | None = None) -> World:
-    n = round(size / spacing) + 1
-    return World("flat", Terrain(np.zeros((n, n)), size, size), obstacles or [])
-
-
-def ramp_world(slope_deg: float, size: float = 20.0, spacing: float = 0.2) -> World:
-    n = round(size / spacing) + 1
-    x = -size / 2 + np.arange(n) * spacing
-    return World("ramp", Terrain(np.tile(np.tan(np.radians(slope_deg)) * x, (n, 1)), size, size))
+from diana_lab.sim.world import World
+from tests.planning.helpers import box, flat_world, ramp_world
 
 
 def test_flat_world_is_traversable_inside_the_border(jackal):
@@ -62,16 +32,20 @@ def test_cell_coordinates_round_trip(jackal):
     assert not cm.traversable(50.0, 0.0) and cm.component_at(50.0, 0.0) == 0
 
 
-@pytest.mark.parametrize(("slope_deg", "passable"), [(10.0, True), (22.0, True), (30.0, False)])
+@pytest.mark.parametrize(
+    ("slope_deg", "passable"), [(10.0, True), (20.0, True), (23.0, False), (30.0, False)]
+)
 def test_slope_against_robot_limit(jackal, slope_deg, passable):
     cm = build_costmap(ramp_world(slope_deg), jackal)
-    assert jackal.max_slope_deg == 25.0
+    limit = jackal.max_slope_deg - CostMapConfig().slope_margin_deg  # 25 - 3 degrees
     centre = cm.cost[cm.shape[0] // 2, cm.shape[1] // 2]
     assert np.isfinite(centre) == passable
+    assert np.all(np.isfinite(cm.cost[~cm.layers["border"]]) == passable)  # a plane is the same everywhere
     if passable:  # gentle slopes cost more than flat ground, in proportion to the slope
-        assert 1.0 < centre < 2.0
-        assert centre == pytest.approx(1.0 + slope_deg / jackal.max_slope_deg, abs=0.02)
+        assert centre == pytest.approx(1.0 + slope_deg / limit, abs=0.01)
         assert cm.layers["step"].max() < 1e-9  # a plane has no steps however steep it is
+    no_margin = build_costmap(ramp_world(slope_deg), jackal, CostMapConfig(slope_margin_deg=0.0))
+    assert np.isfinite(no_margin.cost[50, 50]) == (slope_deg < jackal.max_slope_deg)
 
 
 def test_step_is_detected_but_smooth_slope_is_not(jackal):
@@ -96,8 +70,9 @@ def test_inflation_radius_is_the_robot_footprint(jackal):
     near = d < 3.0
     lethal = ~cm.free
     assert np.all(lethal[near & (d < jackal.radius)])
-    # beyond the radius plus the raster's quantisation (one obstacle_resolution) everything is free
-    assert np.all(~lethal[near & (d > jackal.radius + world.obstacle_resolution)])
+    # beyond the radius, half a cell (paths run anywhere in a free cell) and the raster's quantisation
+    # (one obstacle_resolution), everything is free
+    assert np.all(~lethal[near & (d > jackal.radius + 0.5 * cm.resolution + world.obstacle_resolution)])
     assert np.array_equal(cm.layers["obstacle"][near], lethal[near])  # the band, not the flat ground, did it
     wider = build_costmap(world, jackal, CostMapConfig(inflation_margin=0.5))
     assert np.all(~wider.free[d < jackal.radius + 0.5])
@@ -149,11 +124,17 @@ def test_coarse_cells_keep_the_worst_hazard(jackal):
         ({"roughness_limit": 0.0}, "planning.roughness_limit"),
         ({"inflation_margin": float("nan")}, "planning.inflation_margin"),
         ({"border_margin": -1.0}, "planning.border_margin"),
+        ({"slope_margin_deg": -1.0}, "planning.slope_margin_deg"),
     ],
 )
 def test_bad_config_names_the_key(kwargs, key):
     with pytest.raises(ConfigError, match=key):
         CostMapConfig(**kwargs)
+
+
+def test_margin_larger_than_the_limit_is_rejected(jackal):
+    with pytest.raises(ConfigError, match=r"planning\.slope_margin_deg"):
+        build_costmap(flat_world(), jackal, CostMapConfig(slope_limit_deg=10.0, slope_margin_deg=10.0))
 
 
 def test_mars_yard_hill_top_is_not_reachable(mars_yard, jackal):
@@ -167,3 +148,38 @@ def test_mars_yard_hill_top_is_not_reachable(mars_yard, jackal):
     assert flank.mean() < 0.25  # the steep flanks 2 m from the summit are mostly untraversable
     assert 0.6 < cm.free.mean() < 0.9
     assert cm.largest_component_mask.mean() > 0.6
+
+
+def test_gentle_hills_are_one_traversable_region(hills_world, jackal):
+    cm = build_costmap(hills_world, jackal)
+    assert np.all(cm.layers["slope_deg"] < jackal.max_slope_deg)
+    assert np.array_equal(cm.free, ~cm.layers["border"])
+    assert cm.n_components == 1 and np.all(cm.cost[cm.free] > 1.0 - 1e-12)
+
+
+def test_components_match_the_search_graph(mars_yard, jackal):
+    """Same label <=> a path exists: what lets the sampler promise a reachable goal."""
+    from scipy.sparse.csgraph import connected_components
+
+    from diana_lab.planning.paths import _graph
+
+    cm = build_costmap(mars_yard, jackal)
+    _, graph_labels = connected_components(_graph(cm, True), directed=False)
+    free = cm.free.ravel()
+    ours = cm.components.ravel()[free]
+    theirs = graph_labels[free]
+    # a one-to-one relabelling: every component of ours is exactly one component of the graph
+    pairs = np.unique(np.stack([ours, theirs]), axis=1)
+    assert len(np.unique(pairs[0])) == len(np.unique(pairs[1])) == pairs.shape[1] == cm.n_components
+
+
+def test_costmap_pickles_with_its_caches(jackal):
+    import pickle
+
+    from diana_lab.planning import plan
+
+    cm = build_costmap(flat_world(obstacles=[box(-1.0, 1.0, -1.0, 1.0, 1.0)]), jackal)
+    path = plan(cm, np.array([-5.0, 0.0]), np.array([5.0, 0.0]))
+    clone = pickle.loads(pickle.dumps(cm))
+    assert np.array_equal(clone.cost, cm.cost) and clone.n_components == cm.n_components
+    assert plan(clone, np.array([-5.0, 0.0]), np.array([5.0, 0.0])).length == pytest.approx(path.length)

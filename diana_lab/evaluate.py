@@ -1,0 +1,135 @@
+"""``python -m diana_lab.evaluate policy=<...> [world=... robot=... eval.*=...] [output=summary.json]``
+
+Evaluates one policy on the fixed suite (``eval.episodes`` episodes from ``eval.seed``) and writes
+``episodes.csv``, ``summary.json``, ``trajectories.png``, ``tilt.png`` and ``episode_0.gif`` into the Hydra
+run directory; ``output=`` also writes the summary JSON there. ``policy=`` is ``straight``, ``astar``,
+``pretrained``, a Stable-Baselines3 ``.zip`` (``vecnormalize.pkl`` beside it is applied) or the MLflow run
+id of a training run (see :mod:`diana_lab.evaluation.loading`)::
+
+    python -m diana_lab.evaluate policy=astar world=mars_yard eval.episodes=100 output=astar.json
+    python -m diana_lab.evaluate policy=<run id> eval.dynamics=physics   # kinematic-trained, in physics
+    python -m diana_lab.evaluate policy=model.zip eval.sensor_noise=[0,0.5,1,2]
+
+* ``eval.dynamics`` null means the training's dynamics: the run's own when the policy comes with its
+  training config (a run id, or a model with ``.hydra/config.yaml`` beside it), else the ``dynamics`` group.
+* ``eval.sensor_noise=[...]`` evaluates once per level in ``noise_<level>/`` with ``sensor.noise_level`` set
+  to it; a sensor configured without noise (``sensor.noise=none``) takes the ``realistic`` preset for the
+  sweep. ``output`` then holds ``{"sensor_noise": {"<level>": summary, ...}}``.
+* With ``tracking.enabled`` the evaluation is an MLflow run (``eval_<key>`` metrics, the files as artefacts),
+  a child of the training run when the policy is a run id.
+
+User mistakes (a missing model file, a policy trained on other observations) print one paragraph and exit
+with status 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf, open_dict
+
+from diana_lab.cli import UserError, hydra_app
+
+__all__ = ["env_config", "main", "run"]
+
+
+def env_config(cfg: DictConfig, eval_dynamics: str | None, train_cfg: DictConfig | None) -> DictConfig:
+    """The env groups to evaluate in: ``cfg``'s, with the dynamics of ``eval.dynamics`` (or of training)."""
+    from diana_lab.config import compose
+
+    env_cfg = OmegaConf.masked_copy(
+        cfg,
+        [
+            g
+            for g in ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode")
+            if g in cfg
+        ],
+    )
+    with open_dict(env_cfg):
+        if eval_dynamics is not None:
+            if env_cfg.dynamics.get("name") != eval_dynamics:
+                env_cfg.dynamics = compose([], config_name=f"dynamics/{eval_dynamics}").dynamics
+        elif train_cfg is not None and "dynamics" in train_cfg:
+            env_cfg.dynamics = train_cfg.dynamics
+    return env_cfg
+
+
+def _table(summaries: dict[str, dict[str, Any]], index: str) -> str:
+    from diana_lab.evaluation.core import summary_table
+
+    table = summary_table(summaries, index)
+    return table.to_string(formatters={"episodes": lambda v: f"{int(v)}"}, float_format=lambda v: f"{v:.3f}")
+
+
+def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
+    """The evaluation behind the command (testable without Hydra); returns what ``output`` receives."""
+    from diana_lab.config import to_object
+    from diana_lab.envs.rover_nav import RoverNavEnv
+    from diana_lab.evaluation.core import evaluate, sweep_sensor_noise
+    from diana_lab.evaluation.loading import check_observation_space, config_differences, load_policy
+    from diana_lab.evaluation.metrics import to_json
+    from diana_lab.evaluation.tracking import log_evaluation, tracking_settings
+
+    if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
+        raise UserError(
+            "policy: expected policy=straight, astar, pretrained, a model .zip path or an MLflow "
+            "run id, e.g. python -m diana_lab.evaluate policy=astar"
+        )
+    eval_cfg = to_object("eval", cfg.eval)
+    loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
+    env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg))
+    try:
+        if loaded.model is not None:
+            check_observation_space(
+                loaded.model.observation_space,
+                env.observation_space,
+                loaded.label,
+                config_differences(loaded.train_cfg, cfg),
+            )
+        if eval_cfg.sensor_noise:
+            levels = sweep_sensor_noise(loaded.policy, env, eval_cfg, out_dir)
+            summaries = {f"{level:g}": s for level, s in levels.items()}
+            payload: dict[str, Any] = {"sensor_noise": summaries}
+            (out_dir / "summary.json").write_text(to_json(payload))
+            table = _table(summaries, "noise_level")
+            prefixed = {f"eval_noise_{k}_": s for k, s in summaries.items()}
+        else:
+            payload = evaluate(loaded.policy, env, eval_cfg, out_dir)
+            table = _table({loaded.label: payload}, "policy")
+            prefixed = {"eval_": payload}
+        dynamics = env.cfg["dynamics"].name
+    finally:
+        env.close()
+    if cfg.get("output"):
+        output = Path(str(cfg.output)).expanduser()
+        output.parent.mkdir(parents=True, exist_ok=True)
+        output.write_text(to_json(payload))
+    print(
+        f"\n{loaded.label} on {cfg.world.name} ({cfg.robot.name}, {dynamics}), {eval_cfg.episodes} episodes, "
+        f"suite seed {eval_cfg.seed}:\n{table}\nresults in {out_dir}"
+    )
+    enabled, _, _ = tracking_settings(cfg)
+    if enabled:
+        params = {
+            "policy": loaded.label,
+            "world": cfg.world.name,
+            "robot": cfg.robot.name,
+            "dynamics": dynamics,
+            "sensor": cfg.sensor.name,
+            **{f"eval.{k}": v for k, v in vars(eval_cfg).items()},
+        }
+        run_id = log_evaluation(cfg, prefixed, out_dir, params, parent_run_id=loaded.run_id)
+        print(f"MLflow run {run_id}" + (f" (child of {loaded.run_id})" if loaded.run_id else ""))
+    return payload
+
+
+@hydra_app(config_name="evaluate")
+def main(cfg: DictConfig) -> None:
+    from hydra.core.hydra_config import HydraConfig
+
+    run(cfg, Path(HydraConfig.get().runtime.output_dir))
+
+
+if __name__ == "__main__":
+    main()

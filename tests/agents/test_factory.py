@@ -1,0 +1,62 @@
+"""Every ``algo=`` option builds its SB3 class with the YAML's hyperparameters and our policy."""
+
+import numpy as np
+import pytest
+from stable_baselines3.common.env_util import make_vec_env
+
+from diana_lab.agents.extractors import RoverExtractor
+from diana_lab.agents.factory import build_model
+from diana_lab.config import ConfigError, compose, to_object
+
+from .fake_env import FakeRoverEnv
+
+ALGOS = {"ppo": "PPO", "a2c": "A2C", "sac": "SAC", "td3": "TD3", "ddpg": "DDPG", "tqc": "TQC"}
+
+
+def algo_cfg(name: str, *overrides: str):
+    return to_object("algo", compose([f"algo={name}", *overrides]).algo)
+
+
+@pytest.mark.parametrize("name", list(ALGOS))
+def test_build_model_for_every_algo(name):
+    cfg = algo_cfg(name, "algo.learning_rate=0.0005", "algo.net_arch=[16,8]")
+    env = make_vec_env(lambda: FakeRoverEnv("points"), n_envs=1, seed=0)
+    model = build_model(cfg, env, seed=3)
+    assert type(model).__name__ == ALGOS[name]
+    assert model.learning_rate == pytest.approx(5e-4)
+    assert model.seed == 3
+    extractors = [m for m in model.policy.modules() if isinstance(m, RoverExtractor)]
+    assert extractors and set(extractors[0].encoders) == {"goal", "points"}
+    widths = [m.out_features for m in model.policy.modules() if type(m).__name__ == "Linear"]
+    assert 16 in widths and 8 in widths  # algo.net_arch reached the heads
+    if name in ("td3", "ddpg"):
+        assert model.action_noise is not None
+    action, _ = model.predict(env.reset(), deterministic=True)
+    assert action.shape == (1, 2) and np.all(np.abs(action) <= 1)
+
+
+def test_yaml_hyperparameters_reach_the_constructor():
+    env = make_vec_env(lambda: FakeRoverEnv(), n_envs=2, seed=0)
+    model = build_model(algo_cfg("ppo", "algo.n_steps=32", "algo.batch_size=16", "algo.gamma=0.9"), env, seed=0)
+    assert (model.n_steps, model.batch_size, model.gamma) == (32, 16, 0.9)
+    tqc = build_model(algo_cfg("tqc", "algo.buffer_size=500"), env, seed=0)
+    assert tqc.top_quantiles_to_drop_per_net == 2 and tqc.replay_buffer.buffer_size == 250  # per env
+    assert tqc.policy.critic.n_quantiles == 25
+
+
+def test_tiny_ppo_learns_on_fake_env():
+    env = make_vec_env(lambda: FakeRoverEnv("depth_image"), n_envs=2, seed=0)
+    model = build_model(algo_cfg("ppo", "algo.n_steps=16", "algo.batch_size=16", "algo.n_epochs=1"), env, seed=0)
+    model.learn(64)
+    assert model.num_timesteps == 64
+
+
+@pytest.mark.parametrize(("override", "key"), [
+    ("algo.learning_rate=-1", "algo.learning_rate"),
+    ("algo.net_arch=[64,0]", "algo.net_arch[1]"),
+    ("algo.extractor.elevation_encoder=gru", "algo.extractor.elevation_encoder"),
+    ("algo.n_steps=0", "algo.n_steps"),
+])
+def test_bad_algo_values_name_the_key(override, key):
+    with pytest.raises(ConfigError, match=key.replace("[", r"\[").replace("]", r"\]")):
+        algo_cfg("ppo", override)

@@ -1,0 +1,83 @@
+"""``python -m diana_lab.evaluate`` in subprocesses: outputs, determinism across processes, user errors."""
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from diana_lab.evaluation.metrics import SUMMARY_KEYS
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = [
+    "world=flat",
+    "world.size_x=20",
+    "world.size_y=20",
+    "eval.min_distance=4",
+    "eval.max_distance=9",
+    "tracking.enabled=false",
+]
+
+
+def evaluate_cli(tmp: Path, *args: str) -> subprocess.CompletedProcess:
+    env = {**os.environ, "MPLBACKEND": "Agg"}
+    env.pop("HYDRA_FULL_ERROR", None)
+    return subprocess.run(
+        [sys.executable, "-m", "diana_lab.evaluate", *args, f"hydra.run.dir={tmp}"],
+        cwd=tmp.parent,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+
+
+def test_cli_writes_the_summary_json_with_every_key(tmp_path):
+    out = tmp_path / "result" / "straight.json"
+    proc = evaluate_cli(
+        tmp_path / "run",
+        "policy=straight",
+        "world=flat",
+        "eval.episodes=3",
+        "tracking.enabled=false",
+        f"output={out}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(out.read_text())
+    for key in SUMMARY_KEYS:
+        assert key in summary
+    assert summary["episodes"] == 3
+    assert (tmp_path / "run" / "summary.json").read_text() == out.read_text()
+    assert "success_rate" in proc.stdout  # the printed table
+
+
+def test_same_seed_gives_a_byte_identical_summary_in_two_processes(tmp_path):
+    # noisy sensor and pose: the per-episode reset seeds must reproduce the noise too
+    args = [
+        "policy=astar",
+        *TINY,
+        "eval.episodes=4",
+        "eval.seed=77",
+        "eval.video=false",
+        "eval.plots=false",
+        "sensor.noise=realistic",
+        "dynamics.pose_noise.position_std=0.05",
+    ]
+    first = evaluate_cli(tmp_path / "a", *args, f"output={tmp_path / 'a.json'}")
+    second = evaluate_cli(tmp_path / "b", *args, f"output={tmp_path / 'b.json'}")
+    assert first.returncode == 0 and second.returncode == 0, first.stderr + second.stderr
+    assert (tmp_path / "a.json").read_bytes() == (tmp_path / "b.json").read_bytes()
+    assert (tmp_path / "a" / "episodes.csv").read_bytes() == (tmp_path / "b" / "episodes.csv").read_bytes()
+
+
+def test_a_missing_model_file_exits_2_naming_the_path(tmp_path):
+    proc = evaluate_cli(tmp_path / "run", "policy=no/such/model.zip", *TINY)
+    assert proc.returncode == 2
+    assert "no/such/model.zip" in proc.stderr and "Traceback" not in proc.stderr
+    assert proc.stderr.startswith("error: ")
+
+
+def test_pretrained_says_it_is_not_shipped_yet(tmp_path):
+    proc = evaluate_cli(tmp_path / "run", "policy=pretrained", *TINY)
+    assert proc.returncode == 2
+    assert "not shipped yet" in proc.stderr

@@ -1,0 +1,70 @@
+import numpy as np
+import pytest
+from gymnasium import spaces
+
+from diana_lab.config import ConfigError, compose
+from diana_lab.evaluation import run_suite
+from diana_lab.evaluation.loading import check_observation_space, config_differences, load_policy
+from diana_lab.evaluation.suite import EpisodeSpec
+
+
+def goal_space():
+    return spaces.Box(-1, 1, (7,), np.float32)
+
+
+def test_observation_mismatch_names_the_key_and_shapes():
+    trained = spaces.Dict({"goal": goal_space(), "depth_image": spaces.Box(0, 1, (1, 48, 64), np.float32)})
+    other = spaces.Dict({"goal": goal_space(), "depth_image": spaces.Box(0, 1, (1, 112, 112), np.float32)})
+    with pytest.raises(
+        ConfigError, match=r"'depth_image' is \(1, 48, 64\) float32 for the policy but \(1, 112, 112\)"
+    ):
+        check_observation_space(trained, other, "model.zip")
+    lidar = spaces.Dict({"goal": goal_space(), "elevation_map": spaces.Box(-1, 1, (2, 40, 40), np.float32)})
+    with pytest.raises(ConfigError, match=r"expects observation key 'depth_image'.*'elevation_map'"):
+        check_observation_space(trained, lidar, "model.zip")
+    # bounds may differ (the goal distance bound follows the world size): not a mismatch
+    wider = spaces.Dict(
+        {
+            "goal": spaces.Box(-2, 2, (7,), np.float32),
+            "depth_image": spaces.Box(0, 1, (1, 48, 64), np.float32),
+        }
+    )
+    check_observation_space(trained, wider, "model.zip")
+
+
+def test_config_differences_name_the_keys():
+    a = compose(["sensor=depth_camera"])
+    b = compose(["sensor=depth_camera_paper"])
+    diffs = config_differences(a, b, groups=("sensor",))
+    assert any(d.startswith("sensor.width: training 64, here 112") for d in diffs)
+
+
+def test_a_saved_sb3_model_loads_runs_and_is_refused_on_other_observations(tmp_path, flat_env):
+    from stable_baselines3 import PPO
+
+    from tests.evaluation.conftest import small_env
+
+    model = PPO(
+        "MultiInputPolicy",
+        flat_env,
+        n_steps=8,
+        batch_size=8,
+        policy_kwargs={"net_arch": [8]},
+        device="cpu",
+        seed=0,
+    )
+    model.save(tmp_path / "model.zip")
+    cfg = compose(["world=flat"])
+    loaded = load_policy(
+        str(tmp_path / "model.zip"), cfg, type("E", (), {"deterministic": True, "seed": 0})()
+    )
+    assert loaded.model is not None and loaded.policy.vecnormalize is None
+    check_observation_space(loaded.model.observation_space, flat_env.observation_space, loaded.label)
+    spec = EpisodeSpec(np.array([-3.0, 0.0]), 0.0, np.array([3.0, 0.0]), seed=1)
+    assert len(run_suite(loaded.policy, flat_env, [spec])) == 1
+    other = small_env("sensor.width=32", "sensor.height=24")
+    try:
+        with pytest.raises(ConfigError, match=r"depth_image.*\(1, 48, 64\).*\(1, 24, 32\)"):
+            check_observation_space(loaded.model.observation_space, other.observation_space, loaded.label)
+    finally:
+        other.close()

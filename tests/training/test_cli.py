@@ -1,0 +1,55 @@
+"""``python -m diana_lab`` as a user runs it: misspellings fail cleanly, Ctrl-C / SIGTERM stop cleanly."""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import time
+
+import pytest
+
+from .helpers import ALGO_TINY, TINY, run_subprocess, runs, store_args
+
+
+@pytest.mark.parametrize(("override", "expected"), [
+    ("algo=ppx", "Could not find 'algo/ppx'"),
+    ("train.total_timestep=10", "train.total_timestep"),
+])
+def test_misspelling_exits_non_zero_without_traceback(override, expected, tmp_path):
+    proc = run_subprocess([override, *store_args(tmp_path)], cwd=tmp_path)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode != 0
+    assert expected in err
+    assert "Traceback" not in err
+    assert not (tmp_path / "mlflow.db").exists()
+
+
+@pytest.mark.parametrize(("sig", "code"), [
+    (signal.SIGINT, 130),
+    pytest.param(signal.SIGTERM, 143, marks=pytest.mark.slow),
+])
+def test_interrupt_saves_checkpoint_and_marks_run_killed(sig, code, tmp_path):
+    # no periodic checkpoints: the only one is what the interrupt saves
+    args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=1000000", "train.checkpoint_every=0",
+            "eval.every=0", *store_args(tmp_path)]
+    proc = run_subprocess(args, cwd=tmp_path)
+    deadline = time.monotonic() + 180
+    for line in proc.stdout:  # SB3's console table is flushed after every update
+        if "total_timesteps" in line or time.monotonic() > deadline:
+            break
+    assert proc.poll() is None, proc.communicate()[1]
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    assert proc.returncode == code, err
+    assert "Traceback" not in err and "interrupted at" in err
+    assert any((tmp_path / "run" / "checkpoints").glob("rl_model_*_steps.zip"))
+    client, (run,) = runs(tmp_path)
+    assert run.info.status == "KILLED"
+    ckpts = [a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")]
+    assert len(ckpts) == 1 and ckpts[0].endswith("_steps.zip")
+    steps = int(ckpts[0].rsplit("_", 2)[-2])
+    assert 128 <= steps < 1_000_000

@@ -1,0 +1,93 @@
+"""``python -m diana_lab`` end to end with tiny budgets: MLflow runs, artefacts, resume, multirun, errors."""
+
+from __future__ import annotations
+
+import pytest
+from hydra.utils import get_class
+
+from .helpers import ALGO_TINY, TINY, run_in_process, runs, store_args
+
+CLASSES = {"ppo": "stable_baselines3.PPO", "a2c": "stable_baselines3.A2C", "sac": "stable_baselines3.SAC",
+           "td3": "stable_baselines3.TD3", "ddpg": "stable_baselines3.DDPG", "tqc": "sb3_contrib.TQC"}
+
+
+@pytest.mark.parametrize("algo", list(ALGO_TINY))
+def test_run_finishes_with_params_metrics_and_loadable_model(algo, tmp_path):
+    code = run_in_process([f"algo={algo}", *TINY, *ALGO_TINY[algo], *store_args(tmp_path)])
+    assert code == 0
+    client, found = runs(tmp_path)
+    assert len(found) == 1
+    run = found[0]
+    assert run.info.status == "FINISHED"
+    assert run.data.tags["algo"] == algo and run.data.tags["world"] == "flat"
+    assert run.data.tags["sensor"] == "depth_camera" and run.data.tags["dynamics"] == "kinematic"
+    assert f"algo={algo}" in run.data.tags["overrides"] and run.data.tags["git_commit"]
+    assert run.data.params["algo.name"] == algo and run.data.params["train.total_timesteps"] == "256"
+    assert run.data.params["sensor.width"] == "16"
+    metrics = run.data.metrics
+    assert "eval/success_rate" in metrics and "eval/spl" in metrics
+    assert "time/fps" in metrics and "rollout/ep_rew_mean" in metrics
+    assert "train/reward_progress" in metrics and "train/outcome_timeout" in metrics
+    history = client.get_metric_history(run.info.run_id, "eval/success_rate")
+    assert max(m.step for m in history) >= 256  # step = timesteps
+    artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
+    assert {"model", "best", "checkpoints", "eval", ".hydra", "config_resolved.yaml"} <= artefacts
+    eval_files = {a.path for a in client.list_artifacts(run.info.run_id, "eval")}
+    assert {"eval/episodes.csv", "eval/summary.json"} <= eval_files
+    local = client.download_artifacts(run.info.run_id, "model/model.zip", str(tmp_path / "dl"))
+    model = get_class(CLASSES[algo]).load(local, device="cpu")
+    assert model.num_timesteps >= 256
+
+
+def test_resume_continues_step_counter_and_run(tmp_path):
+    base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "eval.every=0", "train.final_eval=false"]
+    assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
+    client, (run,) = runs(tmp_path)
+    assert run_in_process([*base, "train.total_timesteps=512", f"train.resume={run.info.run_id}",
+                           *store_args(tmp_path, "second")]) == 0
+    client, found = runs(tmp_path)
+    assert len(found) == 1  # the same MLflow run, not a new one
+    run = client.get_run(run.info.run_id)
+    assert run.info.status == "FINISHED" and "resumed_from" in run.data.tags
+    steps = sorted(m.step for m in client.get_metric_history(run.info.run_id, "time/total_timesteps"))
+    assert steps[0] < 256 < steps[-1] and steps[-1] >= 512  # counted on from the first run, not restarted
+    ckpts = {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")}
+    assert "checkpoints/rl_model_256_steps.zip" in ckpts and "checkpoints/rl_model_512_steps.zip" in ckpts
+
+
+def test_resume_from_run_dir_and_finished_budget_is_a_clear_error(tmp_path, capsys):
+    base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "eval.every=0", "train.final_eval=false"]
+    assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
+    capsys.readouterr()
+    assert run_in_process([*base, f"train.resume={tmp_path}/first", *store_args(tmp_path, "again")]) == 2
+    assert "train.total_timesteps" in capsys.readouterr().err
+
+
+def test_multirun_gives_one_run_per_job(tmp_path):
+    args = ["-m", "algo=ppo", "seed=0,1", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=64", "eval.every=0",
+            "train.final_eval=false", f"tracking.uri=sqlite:///{tmp_path}/mlflow.db", f"hydra.sweep.dir={tmp_path}/multi"]
+    assert run_in_process(args) == 0
+    _, found = runs(tmp_path)
+    assert sorted(r.data.tags["seed"] for r in found) == ["0", "1"]
+    assert all(r.info.status == "FINISHED" for r in found)
+    assert {r.data.tags["run_dir"] for r in found} == {f"{tmp_path}/multi/0", f"{tmp_path}/multi/1"}
+
+
+def test_tracking_disabled_writes_no_store(tmp_path):
+    args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=64", "eval.every=0", "train.final_eval=false",
+            "tracking.enabled=false", *store_args(tmp_path)]
+    assert run_in_process(args) == 0
+    assert not (tmp_path / "mlflow.db").exists()
+    assert (tmp_path / "run" / "model" / "model.zip").is_file()
+
+
+@pytest.mark.parametrize(("override", "message"), [
+    ("train.n_envs=0", "train.n_envs"),
+    ("train.vec_env=threads", "train.vec_env"),
+    ("train.resume=/no/such/dir", "train.resume"),
+])
+def test_bad_values_exit_2_without_a_run(override, message, tmp_path, capsys):
+    assert run_in_process(["algo=ppo", *TINY, override, *store_args(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not runs(tmp_path)[1]  # validated before any MLflow run is opened
