@@ -9,7 +9,7 @@ import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-from diana_lab.config import build, compose, to_object  # noqa: E402
+from diana_lab.config import build, compose, to_object
 
 
 @pytest.fixture(scope="session")

@@ -32,8 +32,7 @@ class ImageCNN(nn.Module):
     6 000-input linear layer).
     """
 
-    def __init__(self, in_channels: int, channels: Sequence[int], out_dim: int,
-                 pool: tuple[int, int] = (3, 4)) -> None:
+    def __init__(self, in_channels: int, channels: Sequence[int], out_dim: int, pool: tuple[int, int] = (3, 4)) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         c_in = in_channels

@@ -36,10 +36,16 @@ class RoverExtractor(BaseFeaturesExtractor):
         point_hidden: widths of PointNet's shared per-point MLP.
     """
 
-    def __init__(self, observation_space: gym.spaces.Dict, goal_hidden: Sequence[int] = (64, 64),
-                 cnn_channels: Sequence[int] = (16, 32, 32), cnn_pool: Sequence[int] = (3, 4),
-                 sensor_features: int = 128, elevation_encoder: str = "cnn",
-                 point_hidden: Sequence[int] = (64, 128)) -> None:
+    def __init__(
+        self,
+        observation_space: gym.spaces.Dict,
+        goal_hidden: Sequence[int] = (64, 64),
+        cnn_channels: Sequence[int] = (16, 32, 32),
+        cnn_pool: Sequence[int] = (3, 4),
+        sensor_features: int = 128,
+        elevation_encoder: str = "cnn",
+        point_hidden: Sequence[int] = (64, 128),
+    ) -> None:
         if not isinstance(observation_space, gym.spaces.Dict):
             raise ConfigError(f"algo.extractor: expected a Dict observation space, got {observation_space}")
         encoders: dict[str, nn.Module] = {}
@@ -63,8 +69,10 @@ class RoverExtractor(BaseFeaturesExtractor):
                 encoders[key] = PointNet(shape[1], point_hidden, sensor_features, mask_index=-1)
                 dims[key] = sensor_features
             else:
-                raise ConfigError(f"algo.extractor: no encoder for observation key {key!r}; expected 'goal' "
-                                  f"and one of {', '.join(SENSOR_KEYS)}")
+                raise ConfigError(
+                    f"algo.extractor: no encoder for observation key {key!r}; expected 'goal' "
+                    f"and one of {', '.join(SENSOR_KEYS)}"
+                )
         super().__init__(observation_space, features_dim=sum(dims.values()))
         self.encoders = nn.ModuleDict(encoders)
         self.dims = dims

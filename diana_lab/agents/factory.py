@@ -30,9 +30,12 @@ def policy_kwargs(cfg: AlgoConfig) -> dict[str, Any]:
     kwargs: dict[str, Any] = {
         "features_extractor_class": RoverExtractor,
         "features_extractor_kwargs": {
-            "goal_hidden": list(ext.goal_hidden), "cnn_channels": list(ext.cnn_channels),
-            "cnn_pool": list(ext.cnn_pool), "sensor_features": ext.sensor_features,
-            "elevation_encoder": ext.elevation_encoder, "point_hidden": list(ext.point_hidden),
+            "goal_hidden": list(ext.goal_hidden),
+            "cnn_channels": list(ext.cnn_channels),
+            "cnn_pool": list(ext.cnn_pool),
+            "sensor_features": ext.sensor_features,
+            "elevation_encoder": ext.elevation_encoder,
+            "point_hidden": list(ext.point_hidden),
         },
         "net_arch": list(cfg.net_arch),
         "normalize_images": False,  # depth images are already in [0, 1] (float32, not uint8)
@@ -53,7 +56,7 @@ def algo_class(cfg: AlgoConfig) -> type[BaseAlgorithm]:
 
 
 def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", verbose: int = 0) -> BaseAlgorithm:
-    """A fresh model of ``cfg``'s class on ``env`` (every non-runner key of ``cfg`` is a constructor kwarg)."""
+    """A fresh model of ``cfg``'s class on ``env`` (each non-runner key of ``cfg`` is a constructor kwarg)."""
     node = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in NON_SB3_KEYS}
     node.update({"_target_": cfg._target_, "_partial_": True, "_convert_": "all"})
     make = instantiate(node)

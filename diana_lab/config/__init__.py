@@ -25,7 +25,17 @@ from diana_lab.config.validation import ConfigError
 CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
 GROUPS = ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode")
 
-__all__ = ["CONF_DIR", "GROUPS", "ConfigError", "build", "compose", "register", "store_schemas", "to_object", "validate"]
+__all__ = [
+    "CONF_DIR",
+    "GROUPS",
+    "ConfigError",
+    "build",
+    "compose",
+    "register",
+    "store_schemas",
+    "to_object",
+    "validate",
+]
 
 
 def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:
@@ -49,8 +59,11 @@ def _schema_for(group: str, node: DictConfig | dict) -> type:
         return next(iter(kinds.values()))
     target = node.get("_target_")
     for schema in kinds.values():
-        if target is not None and getattr(schema, "_target_", None) == target and node.get("name") in (
-            None, getattr(schema, "name", None)):
+        if (
+            target is not None
+            and getattr(schema, "_target_", None) == target
+            and node.get("name") in (None, getattr(schema, "name", None))
+        ):
             return schema
     name = node.get("name")
     if name in kinds:

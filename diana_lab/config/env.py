@@ -30,8 +30,10 @@ class ActionSpaceConfig:
         non_negative("action_space.min_distance", self.min_distance)
         extent = self.size / 2 if self.shape == "square" else self.radius
         if self.min_distance >= extent:
-            raise ConfigError(f"action_space.min_distance ({self.min_distance}) must be smaller than the shape's "
-                              f"half-extent ({extent})")
+            raise ConfigError(
+                f"action_space.min_distance ({self.min_distance}) must be smaller than the shape's "
+                f"half-extent ({extent})"
+            )
 
 
 @dataclass
@@ -90,8 +92,12 @@ class EpisodeConfig:
         non_negative("episode.map_margin", self.map_margin)
         positive("episode.distance_scale", self.distance_scale)
         if self.curriculum.enabled:
-            in_range("episode.curriculum.start_max_distance", self.curriculum.start_max_distance,
-                     self.min_distance, self.max_distance)
+            in_range(
+                "episode.curriculum.start_max_distance",
+                self.curriculum.start_max_distance,
+                self.min_distance,
+                self.max_distance,
+            )
             positive("episode.curriculum.episodes", self.curriculum.episodes)
 
 

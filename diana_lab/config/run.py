@@ -20,8 +20,19 @@ VEC_ENVS = ("dummy", "subproc")
 ELEVATION_ENCODERS = ("cnn", "mlp")
 
 # algo keys that configure the runner / policy rather than being constructor arguments of the SB3 class
-NON_SB3_KEYS = frozenset({"_target_", "name", "net_arch", "normalize", "norm_obs_keys", "norm_reward",
-                          "extractor", "policy_kwargs", "action_noise_std"})
+NON_SB3_KEYS = frozenset(
+    {
+        "_target_",
+        "name",
+        "net_arch",
+        "normalize",
+        "norm_obs_keys",
+        "norm_reward",
+        "extractor",
+        "policy_kwargs",
+        "action_noise_std",
+    }
+)
 
 
 def _positive_int(key: str, value: int) -> None:
@@ -63,8 +74,10 @@ class ExtractorConfig:
         _layers("algo.extractor.point_hidden", self.point_hidden)
         _layers("algo.extractor.cnn_pool", self.cnn_pool)
         if not self.goal_hidden or not self.cnn_channels or not self.point_hidden or len(self.cnn_pool) != 2:
-            raise ConfigError("algo.extractor: goal_hidden, cnn_channels and point_hidden need at least one "
-                              "layer each, cnn_pool exactly two numbers")
+            raise ConfigError(
+                "algo.extractor: goal_hidden, cnn_channels and point_hidden need at least one "
+                "layer each, cnn_pool exactly two numbers"
+            )
         _positive_int("algo.extractor.sensor_features", self.sensor_features)
         one_of("algo.extractor.elevation_encoder", self.elevation_encoder, ELEVATION_ENCODERS)
 
@@ -157,8 +170,11 @@ class OffPolicyConfig(AlgoConfig):
         _positive_int("algo.batch_size", self.batch_size)
         in_range("algo.tau", self.tau, 0.0, 1.0)
         _positive_int("algo.train_freq", self.train_freq)
-        if isinstance(self.gradient_steps, bool) or not isinstance(self.gradient_steps, int) or (
-                self.gradient_steps == 0 or self.gradient_steps < -1):
+        if (
+            isinstance(self.gradient_steps, bool)
+            or not isinstance(self.gradient_steps, int)
+            or (self.gradient_steps == 0 or self.gradient_steps < -1)
+        ):
             raise ConfigError(f"algo.gradient_steps: expected a positive integer or -1, got {self.gradient_steps!r}")
 
     @property
@@ -228,7 +244,7 @@ class TrainConfig:
     final_eval: bool = True  # evaluate the final model on eval.episodes episodes (episodes.csv, plots, GIF)
     device: str = "cpu"
     # 1: these networks are tiny, and a second OpenMP thread spin-waits against the env for the same cores
-    # (a 16 x 12 convolution took 10 ms with 2 threads vs 0.06 ms with 1 on a 2-core machine). 0: torch's default
+    # (a 16 x 12 convolution: 10 ms with 2 threads, 0.06 ms with 1, on a 2-core machine). 0: torch's default
     torch_threads: int = 1
 
     def __post_init__(self) -> None:
@@ -263,7 +279,16 @@ class TrackingConfig:
             raise ConfigError("tracking.experiment: expected a non-empty experiment name")
 
 
-register("algo", {"ppo": PPOConfig, "a2c": A2CConfig, "sac": SACConfig, "tqc": TQCConfig, "ddpg": DDPGConfig,
-                  "td3": TD3Config})
+register(
+    "algo",
+    {
+        "ppo": PPOConfig,
+        "a2c": A2CConfig,
+        "sac": SACConfig,
+        "tqc": TQCConfig,
+        "ddpg": DDPGConfig,
+        "td3": TD3Config,
+    },
+)
 register("train", {"train": TrainConfig})
 register("tracking", {"tracking": TrackingConfig})

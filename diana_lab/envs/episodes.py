@@ -34,14 +34,23 @@ class EpisodeSampler:
         self.cfg, self.world = cfg, world
         self.costmap = costmap if costmap is not None else build_costmap(world, robot)
         labels = self.costmap.components
-        ids, counts = np.unique(labels[labels > 0], return_counts=True)
-        if ids.size == 0:
-            raise ConfigError(f"world '{world.name}': no traversable cell for robot '{robot.name}' "
-                              "(slopes, steps or obstacles exceed its limits everywhere)")
+        if not np.any(labels > 0):
+            raise ConfigError(
+                f"world '{world.name}': no traversable cell for robot '{robot.name}' "
+                "(slopes, steps or obstacles exceed its limits everywhere)"
+            )
         iy, ix = np.nonzero(labels > 0)
         x, y = self.costmap.cell_to_world(ix, iy)
-        self._xy = np.column_stack([x, y])
-        self._label = labels[iy, ix]
+        # the env clamps waypoints this far inside the map: a goal beyond it could never be reached
+        inside = world.terrain.contains(x, y, margin=robot.radius + cfg.map_margin)
+        self._xy = np.column_stack([x, y])[inside]
+        self._label = labels[iy, ix][inside]
+        if self._label.size == 0:
+            raise ConfigError(
+                f"episode.map_margin: no traversable cell of world '{world.name}' lies "
+                f"{robot.radius + cfg.map_margin:.2f} m inside the map edge"
+            )
+        ids, counts = np.unique(self._label, return_counts=True)
         # draw starts from regions that are large enough to hold an episode, in proportion to their size
         big = ids[counts * self.costmap.resolution**2 >= math.pi * cfg.min_distance**2 / 4]
         self._start_pool = np.flatnonzero(np.isin(self._label, big if big.size else ids[[np.argmax(counts)]]))
@@ -54,8 +63,9 @@ class EpisodeSampler:
         frac = min(1.0, self.episodes_drawn / c.episodes)
         return c.start_max_distance + frac * (self.cfg.max_distance - c.start_max_distance)
 
-    def sample(self, rng: np.random.Generator, min_distance: float | None = None,
-               max_distance: float | None = None) -> Episode:
+    def sample(
+        self, rng: np.random.Generator, min_distance: float | None = None, max_distance: float | None = None
+    ) -> Episode:
         lo = self.cfg.min_distance if min_distance is None else min_distance
         hi = self.max_distance() if max_distance is None else max_distance
         for _ in range(MAX_TRIES):
@@ -67,9 +77,11 @@ class EpisodeSampler:
                 goal = self._xy[candidates[rng.integers(candidates.size)]]
                 self.episodes_drawn += 1
                 return Episode(start.copy(), float(rng.uniform(-math.pi, math.pi)), goal.copy())
-        raise ConfigError(f"episode.min_distance/max_distance: no start/goal pair {lo}..{hi} m apart in one "
-                          f"traversable region of world '{self.world.name}' after {MAX_TRIES} tries; "
-                          "lower the distances or use a larger world")
+        raise ConfigError(
+            f"episode.min_distance/max_distance: no start/goal pair {lo}..{hi} m apart in one "
+            f"traversable region of world '{self.world.name}' after {MAX_TRIES} tries; "
+            "lower the distances or use a larger world"
+        )
 
     def check_point(self, xy: np.ndarray, what: str) -> None:
         """Fixed episodes (``reset(options=...)``) must lie on the map."""

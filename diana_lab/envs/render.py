@@ -28,10 +28,19 @@ def hillshade(world: World, pixels: int = MAP_PIXELS) -> np.ndarray:
     from matplotlib.colors import LightSource
 
     h = world.terrain.heights[::-1]  # image rows run north to south
-    ls = LightSource(azdeg=315, altdeg=45)
-    span = max(float(np.ptp(h)), 1e-6)
-    rgb = ls.shade(h, cmap=colormaps["copper"], vert_exag=3.0 * 10.0 / span if span > 0.01 else 1.0,
-                   blend_mode="soft", dx=world.terrain.dx, dy=world.terrain.dy)[..., :3]
+    span = float(np.ptp(h))
+    if span < 1e-3:  # flat: shading and a colour ramp have nothing to show; use one mid tone of the ramp
+        rgb = np.broadcast_to(np.asarray(colormaps["copper"](0.6))[:3], (*h.shape, 3))
+    else:
+        ls = LightSource(azdeg=315, altdeg=45)
+        rgb = ls.shade(
+            h,
+            cmap=colormaps["copper"],
+            vert_exag=30.0 / span,
+            blend_mode="soft",
+            dx=world.terrain.dx,
+            dy=world.terrain.dy,
+        )[..., :3]
     img = Image.fromarray((rgb * 255).astype(np.uint8))
     ny, nx = world.terrain.shape
     scale = pixels / max(nx, ny)
@@ -59,9 +68,14 @@ class TopDownMap:
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         return np.column_stack([(xy[:, 0] - self._x0) * self._sx, (self._y1 - xy[:, 1]) * self._sy])
 
-    def draw(self, paths: list[tuple[np.ndarray, tuple[int, int, int]]], start: np.ndarray | None = None,
-             goal: np.ndarray | None = None, rover: tuple[np.ndarray, float] | None = None,
-             goal_radius: float = 0.5) -> Image.Image:
+    def draw(
+        self,
+        paths: list[tuple[np.ndarray, tuple[int, int, int]]],
+        start: np.ndarray | None = None,
+        goal: np.ndarray | None = None,
+        rover: tuple[np.ndarray, float] | None = None,
+        goal_radius: float = 0.5,
+    ) -> Image.Image:
         img = Image.fromarray(self.background.copy())
         d = ImageDraw.Draw(img)
         for path, colour in paths:
@@ -95,25 +109,36 @@ class EnvRenderer:
         scene = self.env.dynamics.scene()
         st = self.env.dynamics.state
         view = p.computeViewMatrixFromYawPitchRoll(
-            cameraTargetPosition=st.position.tolist(), distance=3.0, yaw=math.degrees(st.yaw) - 90.0,
-            pitch=-25.0, roll=0.0, upAxisIndex=2, physicsClientId=scene.client)
-        proj = p.computeProjectionMatrixFOV(60.0, VIEW_SIZE[0] / VIEW_SIZE[1], 0.1, 60.0,
-                                            physicsClientId=scene.client)
-        _, _, rgba, _, _ = p.getCameraImage(VIEW_SIZE[0], VIEW_SIZE[1], view, proj,
-                                            renderer=p.ER_TINY_RENDERER, physicsClientId=scene.client)
+            cameraTargetPosition=st.position.tolist(),
+            distance=3.0,
+            yaw=math.degrees(st.yaw) - 90.0,
+            pitch=-25.0,
+            roll=0.0,
+            upAxisIndex=2,
+            physicsClientId=scene.client,
+        )
+        proj = p.computeProjectionMatrixFOV(60.0, VIEW_SIZE[0] / VIEW_SIZE[1], 0.1, 60.0, physicsClientId=scene.client)
+        _, _, rgba, _, _ = p.getCameraImage(
+            VIEW_SIZE[0], VIEW_SIZE[1], view, proj, renderer=p.ER_TINY_RENDERER, physicsClientId=scene.client
+        )
         return np.asarray(rgba, dtype=np.uint8).reshape(VIEW_SIZE[1], VIEW_SIZE[0], 4)[..., :3]
 
     def render(self) -> np.ndarray:
         env = self.env
         st = env.dynamics.state
-        top = self.map.draw([(env.trail, (255, 80, 40))], env._episode.start, env.goal, (st.xy, st.yaw),
-                            env.episode_cfg.goal_tolerance)
+        top = self.map.draw(
+            [(env.trail, (255, 80, 40))],
+            env._episode.start,
+            env.goal,
+            (st.xy, st.yaw),
+            env.episode_cfg.goal_tolerance,
+        )
         top = np.asarray(top.resize((VIEW_SIZE[0], round(top.height * VIEW_SIZE[0] / top.width))))
         side = self.third_person()
         height = max(top.shape[0], side.shape[0])
         frame = np.zeros((height, top.shape[1] + side.shape[1], 3), dtype=np.uint8)
         frame[: top.shape[0], : top.shape[1]] = top
-        frame[: side.shape[0], top.shape[1]:] = side
+        frame[: side.shape[0], top.shape[1] :] = side
         return frame
 
     def close(self) -> None:

@@ -106,11 +106,12 @@ class RewardManager:
             accepted = set(inspect.signature(fn).parameters) - {"ctx"}
             unknown = set(params) - accepted
             if unknown:
-                raise ConfigError(f"reward.terms.{name}.params: unknown parameter(s) {sorted(unknown)} for "
-                                  f"{term.fn}; it accepts {sorted(accepted) or 'none'}")
+                raise ConfigError(
+                    f"reward.terms.{name}.params: unknown parameter(s) {sorted(unknown)} for "
+                    f"{term.fn}; it accepts {sorted(accepted) or 'none'}"
+                )
             self.terms.append((name, fn, float(term.weight), params))
 
     def __call__(self, ctx: RewardContext) -> tuple[float, dict[str, float]]:
-        values = {name: weight * float(fn(ctx, **params)) if weight else 0.0
-                  for name, fn, weight, params in self.terms}
+        values = {name: weight * float(fn(ctx, **params)) if weight else 0.0 for name, fn, weight, params in self.terms}
         return float(sum(values.values())), values

@@ -46,19 +46,39 @@ class RoverNavEnv(gym.Env):
 
     metadata = {"render_modes": ["rgb_array", "human"], "render_fps": 4}
 
-    def __init__(self, world: Any = None, robot: Any = None, dynamics: Any = None, sensor: Any = None,
-                 action_space: Any = None, reward: Any = None, episode: Any = None, config: Any = None,
-                 world_instance: World | None = None, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        world: Any = None,
+        robot: Any = None,
+        dynamics: Any = None,
+        sensor: Any = None,
+        action_space: Any = None,
+        reward: Any = None,
+        episode: Any = None,
+        config: Any = None,
+        world_instance: World | None = None,
+        render_mode: str | None = None,
+    ) -> None:
         super().__init__()
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode: expected one of {self.metadata['render_modes']}, got {render_mode!r}")
-        given = {"world": world, "robot": robot, "dynamics": dynamics, "sensor": sensor,
-                 "action_space": action_space, "reward": reward, "episode": episode}
+        given = {
+            "world": world,
+            "robot": robot,
+            "dynamics": dynamics,
+            "sensor": sensor,
+            "action_space": action_space,
+            "reward": reward,
+            "episode": episode,
+        }
         missing = [g for g, v in given.items() if v is None and (config is None or g not in config)]
         defaults = C.compose() if missing else None
-        cfgs = {g: C.to_object(g, v if v is not None else (config[g] if config is not None and g in config
-                                                            else defaults[g]))
-                for g, v in given.items()}
+        cfgs = {
+            g: C.to_object(
+                g, v if v is not None else (config[g] if config is not None and g in config else defaults[g])
+            )
+            for g, v in given.items()
+        }
         self.cfg = cfgs
         self.world: World = world_instance if world_instance is not None else C.build(cfgs["world"])
         self.robot = cfgs["robot"]
@@ -77,10 +97,12 @@ class RoverNavEnv(gym.Env):
         diag = math.hypot(self.world.terrain.size_x, self.world.terrain.size_y) / self.episode_cfg.distance_scale
         goal_high = np.array([max(diag, 1.0), 1, 1, 1, 1, 1, 1], dtype=np.float32)
         goal_low = np.array([0, -1, -1, -1, -1, -1, -1], dtype=np.float32)
-        self.observation_space = spaces.Dict({
-            "goal": spaces.Box(goal_low, goal_high, dtype=np.float32),
-            self.sensor_key: self.sensor.observation_space,
-        })
+        self.observation_space = spaces.Dict(
+            {
+                "goal": spaces.Box(goal_low, goal_high, dtype=np.float32),
+                self.sensor_key: self.sensor.observation_space,
+            }
+        )
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._episode: Episode | None = None
 
@@ -99,8 +121,17 @@ class RoverNavEnv(gym.Env):
         dx, dy = self.goal - est.xy
         distance = float(math.hypot(dx, dy))
         error = float(wrap_angle(math.atan2(dy, dx) - est.yaw))
-        g = np.array([distance / self.episode_cfg.distance_scale, math.sin(error), math.cos(error),
-                      est.roll / (math.pi / 2), est.pitch / (math.pi / 2), math.sin(est.yaw), math.cos(est.yaw)])
+        g = np.array(
+            [
+                distance / self.episode_cfg.distance_scale,
+                math.sin(error),
+                math.cos(error),
+                est.roll / (math.pi / 2),
+                est.pitch / (math.pi / 2),
+                math.sin(est.yaw),
+                math.cos(est.yaw),
+            ]
+        )
         space = self.observation_space["goal"]
         return np.clip(g, space.low, space.high).astype(np.float32), distance, error
 
@@ -113,7 +144,9 @@ class RoverNavEnv(gym.Env):
     def _clamp(self, waypoint: np.ndarray) -> np.ndarray:
         margin = self.robot.radius + self.episode_cfg.map_margin
         x0, x1, y0, y1 = self.world.bounds
-        return np.array([np.clip(waypoint[0], x0 + margin, x1 - margin), np.clip(waypoint[1], y0 + margin, y1 - margin)])
+        return np.array(
+            [np.clip(waypoint[0], x0 + margin, x1 - margin), np.clip(waypoint[1], y0 + margin, y1 - margin)]
+        )
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -178,20 +211,39 @@ class RoverNavEnv(gym.Env):
             return "timeout"
         return None
 
-    def _info(self, waypoint: np.ndarray | None, result: WaypointResult | None, outcome: str | None,
-              terms: dict[str, float]) -> dict[str, Any]:
+    def _info(
+        self,
+        waypoint: np.ndarray | None,
+        result: WaypointResult | None,
+        outcome: str | None,
+        terms: dict[str, float],
+    ) -> dict[str, Any]:
         st = self.dynamics.state
         info: dict[str, Any] = {
-            "start": self._episode.start.copy(), "goal": self._episode.goal.copy(), "position": st.position.copy(),
-            "yaw": st.yaw, "distance_to_goal": self._distance, "start_distance": self._start_distance,
-            "steps": self._steps, "sim_time": st.time, "path_length": self._path_length,
-            "tilt_deg": st.tilt_deg, "roll_deg": math.degrees(st.rpy[0]), "pitch_deg": math.degrees(st.rpy[1]),
-            "max_tilt_deg": max(self._max_tilt, st.tilt_deg), "time_over_15deg_s": self._time_over_tilt,
+            "start": self._episode.start.copy(),
+            "goal": self._episode.goal.copy(),
+            "position": st.position.copy(),
+            "yaw": st.yaw,
+            "distance_to_goal": self._distance,
+            "start_distance": self._start_distance,
+            "steps": self._steps,
+            "sim_time": st.time,
+            "path_length": self._path_length,
+            "tilt_deg": st.tilt_deg,
+            "roll_deg": math.degrees(st.rpy[0]),
+            "pitch_deg": math.degrees(st.rpy[1]),
+            "max_tilt_deg": max(self._max_tilt, st.tilt_deg),
+            "time_over_15deg_s": self._time_over_tilt,
             "reward_terms": terms,
         }
         if result is not None:
-            info.update(waypoint=waypoint, waypoint_outcome=result.outcome, waypoint_reached=result.reached,
-                        trace_xy=result.trace_xy, trace_tilt_deg=result.trace_tilt_deg)
+            info.update(
+                waypoint=waypoint,
+                waypoint_outcome=result.outcome,
+                waypoint_reached=result.reached,
+                trace_xy=result.trace_xy,
+                trace_tilt_deg=result.trace_tilt_deg,
+            )
         if outcome is not None:
             info["outcome"] = outcome
             info["is_success"] = outcome == "success"  # SB3 logs rollout/success_rate from this key

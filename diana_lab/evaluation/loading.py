@@ -106,9 +106,7 @@ def _algo_class(model_zip: Path, train_cfg: DictConfig | None) -> type:
     except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
         raise UserError(f"policy: '{model_zip}' is not a Stable-Baselines3 model archive ({exc})") from exc
     module = str(data.get("policy_class", {}).get("__module__", ""))
-    package, cls = next(
-        (v for k, v in ALGOS_BY_MODULE.items() if module.startswith(k)), ("stable_baselines3", "PPO")
-    )
+    package, cls = next((v for k, v in ALGOS_BY_MODULE.items() if module.startswith(k)), ("stable_baselines3", "PPO"))
     return getattr(importlib.import_module(package), cls)
 
 
@@ -135,9 +133,7 @@ def load_sb3(
     return SB3Policy(model, vn, deterministic=deterministic, seed=seed), model
 
 
-def _from_dir(
-    root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: str | None = None
-) -> LoadedPolicy:
+def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: str | None = None) -> LoadedPolicy:
     cfg_path = next(
         (
             p
@@ -174,9 +170,7 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         dst = Path(tmp)  # everything is in memory once loaded: the download need not outlive this call
         try:
             model_zip = Path(
-                mlflow.artifacts.download_artifacts(
-                    run_id=run_id, artifact_path=MODEL_ARTIFACT, dst_path=str(dst)
-                )
+                mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=MODEL_ARTIFACT, dst_path=str(dst))
             )
         except (MlflowException, OSError) as exc:
             raise UserError(
@@ -265,17 +259,12 @@ def check_observation_space(
     problems = []
     for k in sorted(set(want) | set(have)):
         if k not in have:
-            problems.append(
-                f"the policy expects observation key '{k}' {want[k][0]}, which this env does not give"
-            )
+            problems.append(f"the policy expects observation key '{k}' {want[k][0]}, which this env does not give")
         elif k not in want:
-            problems.append(
-                f"this env gives observation key '{k}' {have[k][0]}, which the policy was not trained on"
-            )
+            problems.append(f"this env gives observation key '{k}' {have[k][0]}, which the policy was not trained on")
         elif want[k] != have[k]:
             problems.append(
-                f"observation '{k}' is {want[k][0]} {want[k][1]} for the policy but {have[k][0]} "
-                f"{have[k][1]} here"
+                f"observation '{k}' is {want[k][0]} {want[k][1]} for the policy but {have[k][0]} {have[k][1]} here"
             )
     if problems:
         hint = (

@@ -39,11 +39,7 @@ def _colour(outcome: str) -> str:
 
 def _legend(outcomes: list[str]) -> list[Line2D]:
     counts = pd.Series(outcomes).value_counts()
-    return [
-        Line2D([], [], color=_colour(o), lw=2, label=f"{o} ({counts[o]})")
-        for o in OUTCOME_COLOURS
-        if o in counts
-    ]
+    return [Line2D([], [], color=_colour(o), lw=2, label=f"{o} ({counts[o]})") for o in OUTCOME_COLOURS if o in counts]
 
 
 def _save(fig: Figure, path: Path) -> Path:
@@ -53,9 +49,7 @@ def _save(fig: Figure, path: Path) -> Path:
     return path
 
 
-def plot_trajectories(
-    world: World, df: pd.DataFrame, traces: list[EpisodeTrace], path: Path, title: str = ""
-) -> Path:
+def plot_trajectories(world: World, df: pd.DataFrame, traces: list[EpisodeTrace], path: Path, title: str = "") -> Path:
     """Every episode's path over the terrain, coloured by outcome; squares mark starts, circles goals."""
     fig = Figure(figsize=(7.5, 7.0))
     ax = fig.add_subplot()

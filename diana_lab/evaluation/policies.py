@@ -71,9 +71,7 @@ class SB3Policy:
 
     name = "sb3"
 
-    def __init__(
-        self, model: Any, vecnormalize: Any = None, deterministic: bool = True, seed: int = 0
-    ) -> None:
+    def __init__(self, model: Any, vecnormalize: Any = None, deterministic: bool = True, seed: int = 0) -> None:
         self.model, self.vecnormalize = model, vecnormalize
         self.deterministic, self.seed = deterministic, seed
         self._episodes = 0

@@ -8,13 +8,16 @@ and the same noise. The shortest path for SPL is the planner's geodesic over the
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import pandas as pd
 
+from diana_lab.evaluation.metrics import spl
 from diana_lab.evaluation.policies import Policy
 from diana_lab.evaluation.suite import EpisodeSpec
 from diana_lab.planning import shortest_path_length
@@ -60,14 +63,19 @@ class EpisodeTrace:
 
 
 def _episode(
-    policy: Policy, env: gym.Env, spec: EpisodeSpec, index: int, frames: list | None, frame_fn=None
+    policy: Policy,
+    env: gym.Env,
+    spec: EpisodeSpec,
+    index: int,
+    on_obs: Callable[[Any], None] | None = None,
 ) -> tuple[dict, EpisodeTrace]:
+    """Run one episode; ``on_obs`` sees every observation (the video's frame hook)."""
     base = env.unwrapped
     obs, info = env.reset(seed=spec.seed, options=spec.reset_options())
     policy.reset(env)
     xy, tilt, wps = [np.asarray(info["position"][:2], dtype=np.float64)], [float(info["tilt_deg"])], []
-    if frames is not None:
-        frames.append(frame_fn(obs))
+    if on_obs is not None:
+        on_obs(obs)
     total, done, limit = 0.0, False, base.episode_cfg.max_steps + 10
     while not done:
         action = policy.act(obs, env)
@@ -77,12 +85,12 @@ def _episode(
         xy.extend(np.asarray(info["trace_xy"])[1:])
         tilt.extend(np.asarray(info["trace_tilt_deg"])[1:])
         wps.append(np.asarray(info["waypoint"], dtype=np.float64))
-        if frames is not None:
-            frames.append(frame_fn(obs))
+        if on_obs is not None:
+            on_obs(obs)
     outcome = str(info.get("outcome", "timeout"))
     success = outcome == "success"
     straight = float(math.dist(spec.start, spec.goal))
-    shortest = shortest_path_length(base.sampler.costmap, spec.start, spec.goal)
+    shortest = float(shortest_path_length(base.sampler.costmap, spec.start, spec.goal))
     path, sim_time = float(info["path_length"]), float(info["sim_time"])
     row = {
         "episode": index,
@@ -97,10 +105,8 @@ def _episode(
         "path_length_m": path,
         "sim_time_s": sim_time,
         "straight_distance_m": straight,
-        "shortest_path_m": float(shortest),
-        "spl": (shortest / max(path, shortest))
-        if success and math.isfinite(shortest) and shortest > 0
-        else 0.0,
+        "shortest_path_m": shortest,
+        "spl": float(spl([success], [shortest], [path])[0]),
         "speed_mps": straight / sim_time if success and sim_time > 0 else math.nan,
         "max_tilt_deg": float(info["max_tilt_deg"]),
         "time_over_15deg_s": float(info["time_over_15deg_s"]),
@@ -111,28 +117,32 @@ def _episode(
     return row, trace
 
 
+def _filmed_episode(
+    policy: Policy, env: gym.Env, spec: EpisodeSpec, index: int, video_path: Path
+) -> tuple[dict, EpisodeTrace]:
+    from diana_lab.evaluation.video import FrameMaker, write_gif
+
+    maker, frames = FrameMaker(env), []
+    try:
+        result = _episode(policy, env, spec, index, lambda obs: frames.append(maker.frame(obs)))
+    finally:
+        maker.close()
+    write_gif(video_path, frames)
+    return result
+
+
 def run_episodes(
     policy: Policy, env: gym.Env, suite: list[EpisodeSpec], video_path: Path | str | None = None
 ) -> tuple[pd.DataFrame, list[EpisodeTrace]]:
     """Like :func:`run_suite`, also returning every episode's trace (for plots)."""
     rows, traces = [], []
-    frames: list | None = None
     for i, spec in enumerate(suite):
-        frame_fn = None
-        if video_path is not None and i == 0:
-            from diana_lab.evaluation.video import FrameMaker
-
-            maker = FrameMaker(env)
-            frames, frame_fn = [], maker.frame
-        row, trace = _episode(policy, env, spec, i, frames if i == 0 else None, frame_fn)
+        if i == 0 and video_path is not None:
+            row, trace = _filmed_episode(policy, env, spec, i, Path(video_path))
+        else:
+            row, trace = _episode(policy, env, spec, i)
         rows.append(row)
         traces.append(trace)
-        if frames is not None and i == 0:
-            from diana_lab.evaluation.video import write_gif
-
-            write_gif(Path(video_path), frames)
-            maker.close()
-            frames = None
     return pd.DataFrame(rows, columns=list(COLUMNS)), traces
 
 

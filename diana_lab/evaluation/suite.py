@@ -60,9 +60,7 @@ def reachable_goal(env: gym.Env, goal: np.ndarray) -> bool:
     return bool(x0 + margin <= goal[0] <= x1 - margin and y0 + margin <= goal[1] <= y1 - margin)
 
 
-def make_suite(
-    env: gym.Env, n: int, seed: int, min_distance: float, max_distance: float
-) -> list[EpisodeSpec]:
+def make_suite(env: gym.Env, n: int, seed: int, min_distance: float, max_distance: float) -> list[EpisodeSpec]:
     """``n`` episodes, start-goal distances in ``[min_distance, max_distance]`` (see the module docstring).
 
     The sampler's curriculum counter is restored afterwards, so building a suite inside a training process

@@ -17,8 +17,10 @@ from diana_lab.config.sim import ControllerConfig, RobotConfig
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
     """Wrap angle(s) to [-pi, pi)."""
-    return (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi if isinstance(a, np.ndarray) else (
-        (a + math.pi) % (2.0 * math.pi) - math.pi
+    return (
+        (np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi
+        if isinstance(a, np.ndarray)
+        else ((a + math.pi) % (2.0 * math.pi) - math.pi)
     )
 
 
@@ -46,7 +48,10 @@ class TurnThenDrive:
 
     def nominal_time(self, distance: float, heading_error: float) -> float:
         """Time the ideal controller needs: the turn plus the straight drive."""
-        return abs(heading_error) / self.turn_speed + max(distance - self.position_tolerance, 0.0) / self.cruise_speed
+        return (
+            abs(heading_error) / self.turn_speed
+            + max(distance - self.position_tolerance, 0.0) / self.cruise_speed
+        )
 
     def time_limit(self, distance: float, heading_error: float) -> float:
         """When the controller gives up on a waypoint."""

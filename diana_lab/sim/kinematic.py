@@ -55,8 +55,11 @@ class KinematicDynamics:
 
         om = self.world.obstacle_map
         blocking = om.height > self.robot.ground_clearance
-        clearance = (distance_transform_edt(~blocking) * om.resolution if blocking.any()
-                     else np.full(om.height.shape, np.inf))
+        clearance = (
+            distance_transform_edt(~blocking) * om.resolution
+            if blocking.any()
+            else np.full(om.height.shape, np.inf)
+        )
         return clearance, om.resolution, om.x_min, om.y_min
 
     def _clearance_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -66,7 +69,9 @@ class KinematicDynamics:
         iy = np.clip(np.rint((y - y0) / res).astype(np.int64), 0, ny - 1)
         return clearance[iy, ix]
 
-    def _poses(self, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _poses(
+        self, x: np.ndarray, y: np.ndarray, yaw: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Height of the base, roll and pitch at each sample (vectorised plane fit under the wheels)."""
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         bx, by = self._wheels[:, 0], self._wheels[:, 1]
@@ -80,7 +85,9 @@ class KinematicDynamics:
         z = a + self.robot.base_height * (1.0 / norm)
         return z, roll, pitch
 
-    def _set_state(self, x: float, y: float, yaw: float, z: float, roll: float, pitch: float, t: float) -> None:
+    def _set_state(
+        self, x: float, y: float, yaw: float, z: float, roll: float, pitch: float, t: float
+    ) -> None:
         self._state = RoverState(np.array([x, y, z]), np.array([roll, pitch, wrap_angle(yaw)]), time=t)
 
     # ------------------------------------------------------------------ interface shared with physics
@@ -90,8 +97,9 @@ class KinematicDynamics:
         self._set_state(x, y, yaw, float(z[0]), float(roll[0]), float(pitch[0]), 0.0)
         return self._state
 
-    def execute(self, waypoint: np.ndarray, controller: TurnThenDrive,
-                pose_estimate: PoseEstimate | None = None) -> WaypointResult:
+    def execute(
+        self, waypoint: np.ndarray, controller: TurnThenDrive, pose_estimate: PoseEstimate | None = None
+    ) -> WaypointResult:
         st = self._state
         x0, y0, yaw0 = float(st.position[0]), float(st.position[1]), st.yaw
         est_xy, est_yaw = pose_estimate(st) if pose_estimate else (st.xy, yaw0)
@@ -112,13 +120,19 @@ class KinematicDynamics:
         xs = np.concatenate([[x0], np.full(n_turn, x0), x0 + s * math.cos(heading)])
         ys = np.concatenate([[y0], np.full(n_turn, y0), y0 + s * math.sin(heading)])
         yaws = np.concatenate([[yaw0], turn_yaw, np.full(n_drive, heading)])
-        times = np.concatenate([[0.0], np.abs(turn_yaw - yaw0) / controller.turn_speed,
-                                abs(turn) / controller.turn_speed + s / controller.cruise_speed])
+        times = np.concatenate(
+            [
+                [0.0],
+                np.abs(turn_yaw - yaw0) / controller.turn_speed,
+                abs(turn) / controller.turn_speed + s / controller.cruise_speed,
+            ]
+        )
         travelled = np.concatenate([np.zeros(1 + n_turn), s])
         return self._check_path(xs, ys, yaws, times, travelled)
 
-    def _check_path(self, xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, times: np.ndarray,
-                    travelled: np.ndarray) -> WaypointResult:
+    def _check_path(
+        self, xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, times: np.ndarray, travelled: np.ndarray
+    ) -> WaypointResult:
         z, roll, pitch = self._poses(xs, ys, yaws)
         tilt = tilt_deg(roll, pitch)
         robot = self.robot
@@ -137,27 +151,47 @@ class KinematicDynamics:
         if outcome == "stuck":
             end = max(first - 1, 0)  # wheels spin at the foot of the slope: the rover stays where it was
         keep = slice(0, end + 1)
-        self._set_state(float(xs[end]), float(ys[end]), float(yaws[end]), float(z[end]), float(roll[end]),
-                        float(pitch[end]), self._state.time + float(times[end]))
+        self._set_state(
+            float(xs[end]),
+            float(ys[end]),
+            float(yaws[end]),
+            float(z[end]),
+            float(roll[end]),
+            float(pitch[end]),
+            self._state.time + float(times[end]),
+        )
         trace_t = times[keep].copy()
         if outcome == "stuck":  # the wheels spin until the controller's stuck window runs out
             trace_t[-1] += self.cfg.stuck_window_s
             self._state.time += self.cfg.stuck_window_s
         rp = np.column_stack([roll[keep], pitch[keep]])
-        result = self._finish(outcome, float(trace_t[-1]), np.column_stack([xs[keep], ys[keep]]), tilt[keep], rp,
-                              float(travelled[end]))
+        result = self._finish(
+            outcome,
+            float(trace_t[-1]),
+            np.column_stack([xs[keep], ys[keep]]),
+            tilt[keep],
+            rp,
+            float(travelled[end]),
+        )
         result.trace_t = trace_t
         return result
 
-    def _finish(self, outcome: str, duration: float, trace_xy: np.ndarray, trace_tilt: np.ndarray,
-                trace_rp: np.ndarray, length: float) -> WaypointResult:
+    def _finish(
+        self,
+        outcome: str,
+        duration: float,
+        trace_xy: np.ndarray,
+        trace_tilt: np.ndarray,
+        trace_rp: np.ndarray,
+        length: float,
+    ) -> WaypointResult:
         if trace_rp.ndim == 1:  # "reached" without moving: one sample of the current attitude
             trace_rp = self._state.rpy[None, :2].copy()
             trace_tilt = np.array([self._state.tilt_deg])
         return WaypointResult(outcome, duration, length, trace_xy, trace_tilt, trace_rp)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ rendering support
-    def scene(self):  # noqa: ANN201 - PybulletScene, imported lazily to keep PyBullet off the fast path
+    def scene(self):
         """The PyBullet scene with the robot at the current pose (built on first use, for rendering)."""
         if self._scene is None:
             from diana_lab.sim.pybullet_scene import PybulletScene

@@ -35,8 +35,13 @@ class RoverState:
         return tilt_deg(self.rpy[0], self.rpy[1])
 
     def copy(self) -> RoverState:
-        return RoverState(self.position.copy(), self.rpy.copy(), self.linear_velocity.copy(),
-                          self.angular_velocity.copy(), self.time)
+        return RoverState(
+            self.position.copy(),
+            self.rpy.copy(),
+            self.linear_velocity.copy(),
+            self.angular_velocity.copy(),
+            self.time,
+        )
 
 
 def tilt_deg(roll: np.ndarray | float, pitch: np.ndarray | float) -> np.ndarray | float:

@@ -117,10 +117,14 @@ class World:
                 scene.add_triangles(ob.vertices.astype(np.float32), ob.triangles.astype(np.uint32))
             lo = np.min([ob.vertices.min(0) for ob in self.obstacles], axis=0)
             hi = np.max([ob.vertices.max(0) for ob in self.obstacles], axis=0)
-            ix0, ix1 = (np.clip(np.floor((lo[0] - x0) / res), 0, nx - 1).astype(int),
-                        np.clip(np.ceil((hi[0] - x0) / res), 0, nx - 1).astype(int))
-            iy0, iy1 = (np.clip(np.floor((lo[1] - y0) / res), 0, ny - 1).astype(int),
-                        np.clip(np.ceil((hi[1] - y0) / res), 0, ny - 1).astype(int))
+            ix0, ix1 = (
+                np.clip(np.floor((lo[0] - x0) / res), 0, nx - 1).astype(int),
+                np.clip(np.ceil((hi[0] - x0) / res), 0, nx - 1).astype(int),
+            )
+            iy0, iy1 = (
+                np.clip(np.floor((lo[1] - y0) / res), 0, ny - 1).astype(int),
+                np.clip(np.ceil((hi[1] - y0) / res), 0, ny - 1).astype(int),
+            )
             gx, gy = np.meshgrid(x0 + np.arange(ix0, ix1 + 1) * res, y0 + np.arange(iy0, iy1 + 1) * res)
             top = float(hi[2]) + 1.0
             rays = np.zeros((gx.size, 6), dtype=np.float32)

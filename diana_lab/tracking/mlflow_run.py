@@ -29,12 +29,12 @@ SQLITE = "sqlite:///"
 def resolve_uri(uri: str) -> str:
     """``sqlite:///rel.db`` -> ``sqlite:////abs/rel.db`` (other URIs unchanged)."""
     if uri.startswith(SQLITE) and not uri.startswith(SQLITE + "/") and ":memory:" not in uri:
-        return SQLITE + str(Path(uri[len(SQLITE):]).expanduser().resolve())
+        return SQLITE + str(Path(uri[len(SQLITE) :]).expanduser().resolve())
     return uri
 
 
 def sqlite_path(uri: str) -> Path | None:
-    return Path(uri[len(SQLITE):]) if uri.startswith(SQLITE + "/") else None
+    return Path(uri[len(SQLITE) :]) if uri.startswith(SQLITE + "/") else None
 
 
 def _quiet_mlflow() -> None:
@@ -77,8 +77,9 @@ class Tracker:
 class MlflowTracker(Tracker):
     """Start (or, with ``resume_run_id``, reopen) a run in ``experiment`` of the store at ``uri``."""
 
-    def __init__(self, uri: str, experiment: str, run_name: str | None = None,
-                 resume_run_id: str | None = None) -> None:
+    def __init__(
+        self, uri: str, experiment: str, run_name: str | None = None, resume_run_id: str | None = None
+    ) -> None:
         import mlflow
         from mlflow.tracking import MlflowClient
 
@@ -127,7 +128,7 @@ class MlflowTracker(Tracker):
         now = int(time.time() * 1000)
         items = [Metric(k, float(v), now, int(step)) for k, v in metrics.items()]
         for i in range(0, len(items), 1000):
-            self.client.log_batch(self.run_id, metrics=items[i:i + 1000])
+            self.client.log_batch(self.run_id, metrics=items[i : i + 1000])
 
     def log_artifact(self, path: Path | str, artifact_path: str | None = None) -> None:
         self.client.log_artifact(self.run_id, str(path), artifact_path)

@@ -47,7 +47,7 @@ def flatten(node: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
 def chunks(items: Mapping[str, str], size: int = BATCH) -> Iterator[dict[str, str]]:
     keys = list(items)
     for i in range(0, len(keys), size):
-        yield {k: items[k] for k in keys[i:i + size]}
+        yield {k: items[k] for k in keys[i : i + size]}
 
 
 def numeric_metrics(summary: Mapping[str, Any], prefix: str) -> dict[str, float]:

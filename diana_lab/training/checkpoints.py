@@ -1,10 +1,10 @@
 """Checkpoints: SB3's CheckpointCallback plus saving on demand (interrupt, end), MLflow upload and pruning.
 
 Every checkpoint is ``<dir>/rl_model_<steps>_steps.zip`` with ``rl_model_vecnormalize_<steps>_steps.pkl``
-(when observations are normalised) and, for off-policy algorithms, ``rl_model_replay_buffer_<steps>_steps.pkl``
-(SB3's names). Replay buffers are hundreds of MB, so only the newest one is kept on disk and none is
-uploaded unless ``tracking.log_replay_buffer``; the model and the statistics go to MLflow under
-``checkpoints/``. :func:`latest_checkpoint` finds what ``train.resume`` continues from.
+(when observations are normalised) and, for off-policy algorithms,
+``rl_model_replay_buffer_<steps>_steps.pkl`` (SB3's names). Replay buffers are hundreds of MB, so only
+the newest one is kept on disk and none is uploaded unless ``tracking.log_replay_buffer``; the model and
+the statistics go to MLflow under ``checkpoints/``. :func:`latest_checkpoint` finds what ``train.resume`` continues from.
 """
 
 from __future__ import annotations
@@ -52,11 +52,24 @@ def latest_checkpoint(directory: Path) -> Checkpoint | None:
 class TrackedCheckpoints(CheckpointCallback):
     """Checkpoint every ``every`` env steps (0: only when :meth:`save` is called), upload, prune buffers."""
 
-    def __init__(self, directory: Path, every: int, n_envs: int, tracker: Tracker, upload: bool = True,
-                 upload_replay_buffer: bool = False, off_policy: bool = False) -> None:
+    def __init__(
+        self,
+        directory: Path,
+        every: int,
+        n_envs: int,
+        tracker: Tracker,
+        upload: bool = True,
+        upload_replay_buffer: bool = False,
+        off_policy: bool = False,
+    ) -> None:
         save_freq = max(every // n_envs, 1) if every > 0 else 0
-        super().__init__(save_freq=save_freq, save_path=str(directory), name_prefix=PREFIX,
-                         save_replay_buffer=off_policy, save_vecnormalize=True)
+        super().__init__(
+            save_freq=save_freq,
+            save_path=str(directory),
+            name_prefix=PREFIX,
+            save_replay_buffer=off_policy,
+            save_vecnormalize=True,
+        )
         self.directory = Path(directory)
         self.tracker, self.upload, self.upload_replay_buffer = tracker, upload, upload_replay_buffer
         self.last: Checkpoint | None = None
@@ -81,8 +94,11 @@ class TrackedCheckpoints(CheckpointCallback):
         self.last = Checkpoint.at(self.directory, self.num_timesteps)
         self._prune_replay_buffers()
         if self.upload:
-            for path in (self.last.model, self.last.vecnormalize,
-                         self.last.replay_buffer if self.upload_replay_buffer else None):
+            for path in (
+                self.last.model,
+                self.last.vecnormalize,
+                self.last.replay_buffer if self.upload_replay_buffer else None,
+            ):
                 if path is not None:
                     self.tracker.log_artifact(path, "checkpoints")
         return self.last

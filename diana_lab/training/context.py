@@ -12,7 +12,17 @@ from pathlib import Path
 __all__ = ["TAG_GROUPS", "RunContext"]
 
 # the config groups whose chosen option becomes an MLflow tag (filterable in the UI: tags.world = "mars_yard")
-TAG_GROUPS = ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode", "algo", "experiment")
+TAG_GROUPS = (
+    "world",
+    "robot",
+    "dynamics",
+    "sensor",
+    "action_space",
+    "reward",
+    "episode",
+    "algo",
+    "experiment",
+)
 
 
 @dataclass(frozen=True)

@@ -57,12 +57,18 @@ def make_env(groups: dict[str, Any], render_mode: str | None = None) -> RoverNav
 def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int) -> VecEnv:
     """``train.n_envs`` Monitor-wrapped envs; env ``i`` is seeded ``seed + i`` at its first reset."""
     vec_cls = SubprocVecEnv if train.vec_env == "subproc" else DummyVecEnv
-    return make_vec_env(functools.partial(make_env, env_config(cfg)), n_envs=train.n_envs, seed=seed,
-                        vec_env_cls=vec_cls, monitor_kwargs={"info_keywords": MONITOR_KEYWORDS})
+    return make_vec_env(
+        functools.partial(make_env, env_config(cfg)),
+        n_envs=train.n_envs,
+        seed=seed,
+        vec_env_cls=vec_cls,
+        monitor_kwargs={"info_keywords": MONITOR_KEYWORDS},
+    )
 
 
 def wrap_normalize(venv: VecEnv, algo: AlgoConfig, gamma: float) -> VecEnv:
     """VecNormalize over the keys in ``algo.norm_obs_keys`` (images and point masks must stay raw)."""
     keys = [k for k in algo.norm_obs_keys if k in venv.observation_space.spaces]
-    return VecNormalize(venv, norm_obs=bool(keys), norm_reward=algo.norm_reward, norm_obs_keys=keys or None,
-                        gamma=gamma)
+    return VecNormalize(
+        venv, norm_obs=bool(keys), norm_reward=algo.norm_reward, norm_obs_keys=keys or None, gamma=gamma
+    )

@@ -46,8 +46,7 @@ class PeriodicEvaluation(BaseCallback):
     best_dir: local folder of the best model so far.
     """
 
-    def __init__(self, make_env: Callable[[], gym.Env], eval_cfg: EvalConfig, tracker: Tracker,
-                 best_dir: Path) -> None:
+    def __init__(self, make_env: Callable[[], gym.Env], eval_cfg: EvalConfig, tracker: Tracker, best_dir: Path) -> None:
         super().__init__()
         self.make_env, self.cfg, self.tracker, self.best_dir = make_env, eval_cfg, tracker, best_dir
         self.every = eval_cfg.every
@@ -68,8 +67,7 @@ class PeriodicEvaluation(BaseCallback):
         return True
 
     def env(self) -> gym.Env:
-        from diana_lab.evaluation.core import eval_env
-        from diana_lab.evaluation.suite import make_suite
+        from diana_lab.evaluation import eval_env, make_suite
 
         if self._run_env is None:
             self._env = self.make_env()
@@ -79,13 +77,15 @@ class PeriodicEvaluation(BaseCallback):
         return self._run_env
 
     def evaluate(self) -> dict[str, Any]:
-        from diana_lab.evaluation.metrics import summarize
-        from diana_lab.evaluation.policies import SB3Policy
-        from diana_lab.evaluation.runner import run_suite
+        from diana_lab.evaluation import SB3Policy, run_suite, summarize
 
         env = self.env()
-        policy = SB3Policy(self.model, self.model.get_vec_normalize_env(), deterministic=self.cfg.deterministic,
-                           seed=self.cfg.seed)
+        policy = SB3Policy(
+            self.model,
+            self.model.get_vec_normalize_env(),
+            deterministic=self.cfg.deterministic,
+            seed=self.cfg.seed,
+        )
         summary = summarize(run_suite(policy, env, self._suite))
         step = self.model.num_timesteps
         self.last_step, self.last_summary = step, summary

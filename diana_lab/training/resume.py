@@ -66,8 +66,9 @@ def _from_dir(directory: Path) -> Checkpoint | None:
 def _from_path(path: Path, uri: str | None) -> ResumePoint:
     ckpt = _from_model_zip(path) if path.is_file() else _from_dir(path)
     if ckpt is None:
-        raise UserError(f"train.resume: no checkpoint (checkpoints/rl_model_<steps>_steps.zip) or model/model.zip "
-                        f"under '{path}'")
+        raise UserError(
+            f"train.resume: no checkpoint (checkpoints/rl_model_<steps>_steps.zip) or model/model.zip under '{path}'"
+        )
     info: dict[str, Any] = {}
     for d in (path, path.parent, path.parent.parent):
         info = read_run_info(d)
@@ -85,8 +86,10 @@ def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
     try:
         run = client.get_run(run_id)
     except MlflowException as exc:
-        raise UserError(f"train.resume={run_id}: not a run dir or checkpoint path, and no MLflow run with this id in "
-                        f"'{uri}' (check tracking.uri)") from exc
+        raise UserError(
+            f"train.resume={run_id}: not a run dir or checkpoint path, and no MLflow run with this id in "
+            f"'{uri}' (check tracking.uri)"
+        ) from exc
     tags = run.data.tags
     local = Path(tags["run_dir"]) if tags.get("run_dir") else None
     if local is not None and (ckpt := _from_dir(local)) is not None:
@@ -94,24 +97,28 @@ def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
     names = [Path(a.path).name for a in client.list_artifacts(run_id, "checkpoints")]
     steps = [int(m.group(1)) for n in names if (m := MODEL_RE.match(n))]
     if not steps:
-        raise UserError(f"train.resume={run_id}: the run has no checkpoint artefact and its run dir "
-                        f"'{local}' is gone")
+        raise UserError(f"train.resume={run_id}: the run has no checkpoint artefact and its run dir '{local}' is gone")
     best = max(steps)
     download_dir.mkdir(parents=True, exist_ok=True)
     for name in names:
         if name.endswith(f"_{best}_steps.zip") or name.endswith(f"_{best}_steps.pkl"):
             client.download_artifacts(run_id, f"checkpoints/{name}", str(download_dir))
-    return ResumePoint(Checkpoint.at(download_dir / "checkpoints", best), run_id, tags.get("algo"),
-                       f"run {run_id} (downloaded checkpoint)")
+    return ResumePoint(
+        Checkpoint.at(download_dir / "checkpoints", best),
+        run_id,
+        tags.get("algo"),
+        f"run {run_id} (downloaded checkpoint)",
+    )
 
 
 def find_resume_point(spec: str, uri: str | None, download_dir: Path) -> ResumePoint:
-    """Resolve ``train.resume`` (see the module docstring); ``uri`` is the tracking URI or ``None`` when off."""
+    """Resolve ``train.resume`` (see the module docstring); ``uri``: the tracking URI, ``None`` when off."""
     path = Path(spec).expanduser()
     if path.exists():
         return _from_path(path.resolve(), uri)
     if RUN_ID.match(spec) and uri is not None:
         return _from_run(spec, uri, download_dir)
     hint = "" if uri is not None else " (MLflow run ids need tracking.enabled=true)"
-    raise UserError(f"train.resume={spec}: expected an MLflow run id, a Hydra run dir or a checkpoint .zip; "
-                    f"no such path{hint}")
+    raise UserError(
+        f"train.resume={spec}: expected an MLflow run id, a Hydra run dir or a checkpoint .zip; no such path{hint}"
+    )

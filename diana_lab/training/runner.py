@@ -10,6 +10,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import json
 import math
@@ -30,7 +31,7 @@ from diana_lab import config as C
 from diana_lab.agents.factory import build_model, load_model
 from diana_lab.cli import UserError
 from diana_lab.config.evaluation import EvalConfig
-from diana_lab.config.run import AlgoConfig, TrainConfig, TrackingConfig
+from diana_lab.config.run import AlgoConfig, TrackingConfig, TrainConfig
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
 from diana_lab.tracking.git import git_commit, git_dirty
 from diana_lab.tracking.params import numeric_metrics
@@ -68,8 +69,14 @@ def _run_name(cfg: DictConfig, ctx: RunContext, tracking: TrackingConfig) -> str
 class TrainingRun:
     """The state of one run between setup and teardown (kept so an interrupt can checkpoint it)."""
 
-    def __init__(self, cfg: DictConfig, ctx: RunContext, typed: dict[str, Any], tracker: Tracker,
-                 resume: ResumePoint | None) -> None:
+    def __init__(
+        self,
+        cfg: DictConfig,
+        ctx: RunContext,
+        typed: dict[str, Any],
+        tracker: Tracker,
+        resume: ResumePoint | None,
+    ) -> None:
         self.cfg, self.ctx, self.tracker, self.resume = cfg, ctx, tracker, resume
         self.algo: AlgoConfig = typed["algo"]
         self.train_cfg: TrainConfig = typed["train"]
@@ -88,10 +95,16 @@ class TrainingRun:
     # ------------------------------------------------------------------ setup
     def log_run_metadata(self) -> None:
         t = self.tracker
-        tags: dict[str, Any] = {**self.ctx.choices, "algo": self.algo.name, "seed": self.seed,
-                                "run_dir": str(self.run_dir.resolve()), "git_commit": git_commit(),
-                                "mlflow.source.git.commit": git_commit(), "git_dirty": git_dirty(),
-                                "overrides": self.ctx.override_string}
+        tags: dict[str, Any] = {
+            **self.ctx.choices,
+            "algo": self.algo.name,
+            "seed": self.seed,
+            "run_dir": str(self.run_dir.resolve()),
+            "git_commit": git_commit(),
+            "mlflow.source.git.commit": git_commit(),
+            "git_dirty": git_dirty(),
+            "overrides": self.ctx.override_string,
+        }
         if self.ctx.job_num is not None:
             tags["hydra_job"] = self.ctx.job_num
         if self.resume is not None:
@@ -122,8 +135,10 @@ class TrainingRun:
                     self.venv = VecNormalize.load(str(ckpt.vecnormalize), self.venv)
                     self.venv.training, self.venv.norm_reward = True, self.algo.norm_reward
                 else:
-                    print(f"warning: no VecNormalize statistics beside {ckpt.model}; starting them afresh",
-                          file=sys.stderr)
+                    print(
+                        f"warning: no VecNormalize statistics beside {ckpt.model}; starting them afresh",
+                        file=sys.stderr,
+                    )
                     self.venv = wrap_normalize(self.venv, self.algo, self.algo.gamma)
             self.model = load_model(self.algo, ckpt.model, self.venv, device)
             if ckpt.replay_buffer is not None and hasattr(self.model, "replay_buffer"):
@@ -136,11 +151,21 @@ class TrainingRun:
 
     def callbacks(self) -> list[BaseCallback]:
         tc = self.tracking_cfg
-        self.checkpoints = TrackedCheckpoints(self.run_dir / "checkpoints", self.train_cfg.checkpoint_every,
-                                              self.train_cfg.n_envs, self.tracker, upload=tc.log_checkpoints,
-                                              upload_replay_buffer=tc.log_replay_buffer, off_policy=self.algo.off_policy)
-        self.evaluator = PeriodicEvaluation(functools.partial(make_env, env_config(self.cfg)), self.eval_cfg,
-                                            self.tracker, self.run_dir / "best")
+        self.checkpoints = TrackedCheckpoints(
+            self.run_dir / "checkpoints",
+            self.train_cfg.checkpoint_every,
+            self.train_cfg.n_envs,
+            self.tracker,
+            upload=tc.log_checkpoints,
+            upload_replay_buffer=tc.log_replay_buffer,
+            off_policy=self.algo.off_policy,
+        )
+        self.evaluator = PeriodicEvaluation(
+            functools.partial(make_env, env_config(self.cfg)),
+            self.eval_cfg,
+            self.tracker,
+            self.run_dir / "best",
+        )
         cbs: list[BaseCallback] = [EpisodeStats(), self.checkpoints, self.evaluator]
         if self.train_cfg.progress_bar:
             self.progress = ProgressWithStats()
@@ -152,12 +177,19 @@ class TrainingRun:
         assert self.model is not None
         remaining = self.train_cfg.total_timesteps - self.model.num_timesteps
         if remaining <= 0:
-            raise UserError(f"train.total_timesteps={self.train_cfg.total_timesteps}: the resumed model has already "
-                            f"trained {self.model.num_timesteps} steps; set a larger total to continue")
+            raise UserError(
+                f"train.total_timesteps={self.train_cfg.total_timesteps}: the resumed model has already "
+                f"trained {self.model.num_timesteps} steps; set a larger total to continue"
+            )
         t0 = time.perf_counter()
         try:
-            self.model.learn(remaining, callback=CallbackList(self.callbacks()), log_interval=self.train_cfg.log_interval,
-                             reset_num_timesteps=self.resume is None, progress_bar=False)
+            self.model.learn(
+                remaining,
+                callback=CallbackList(self.callbacks()),
+                log_interval=self.train_cfg.log_interval,
+                reset_num_timesteps=self.resume is None,
+                progress_bar=False,
+            )
         finally:
             self.learn_time = time.perf_counter() - t0
             if self.progress is not None:
@@ -177,13 +209,16 @@ class TrainingRun:
             self.tracker.log_artifact(path, "model")
         if not self.train_cfg.final_eval:
             return self.evaluator.last_summary or {}
-        from diana_lab.evaluation.core import evaluate
-        from diana_lab.evaluation.policies import SB3Policy
+        from diana_lab.evaluation import SB3Policy, evaluate
 
         out = self.run_dir / "eval"
         env = self.evaluator.env()  # the evaluation env (its dynamics already applied)
-        policy = SB3Policy(self.model, self.model.get_vec_normalize_env(), deterministic=self.eval_cfg.deterministic,
-                           seed=self.eval_cfg.seed)
+        policy = SB3Policy(
+            self.model,
+            self.model.get_vec_normalize_env(),
+            deterministic=self.eval_cfg.deterministic,
+            seed=self.eval_cfg.seed,
+        )
         summary = evaluate(policy, env, self.eval_cfg, out)
         self.tracker.log_metrics(numeric_metrics(summary, "eval/"), self.model.num_timesteps)
         self.tracker.log_artifacts(out, "eval")
@@ -198,20 +233,26 @@ class TrainingRun:
         steps = self.model.num_timesteps if self.model is not None else 0
         fps = (steps - self.start_steps) / self.learn_time if self.learn_time > 0 else math.nan
         best = self.evaluator.best_spl if self.evaluator is not None else -math.inf
-        return TrainResult(status=status, run_dir=self.run_dir, algo=self.algo.name, num_timesteps=steps,
-                           wall_time_s=self.learn_time, fps=fps, run_id=self.tracker.run_id,
-                           tracking_uri=self.tracker.uri, eval_summary=summary,
-                           best_spl=best if math.isfinite(best) else math.nan,
-                           checkpoint=self.checkpoints.last.model if self.checkpoints and self.checkpoints.last else None)
+        return TrainResult(
+            status=status,
+            run_dir=self.run_dir,
+            algo=self.algo.name,
+            num_timesteps=steps,
+            wall_time_s=self.learn_time,
+            fps=fps,
+            run_id=self.tracker.run_id,
+            tracking_uri=self.tracker.uri,
+            eval_summary=summary,
+            best_spl=best if math.isfinite(best) else math.nan,
+            checkpoint=self.checkpoints.last.model if self.checkpoints and self.checkpoints.last else None,
+        )
 
     def close(self) -> None:
         if self.evaluator is not None:
             self.evaluator.close()
         if self.venv is not None:
-            try:
+            with contextlib.suppress(EOFError, BrokenPipeError, OSError):  # workers already gone after Ctrl-C
                 self.venv.close()
-            except (EOFError, BrokenPipeError, OSError):  # subprocess workers already gone after Ctrl-C
-                pass
 
 
 def _flat_missing(resolved: Any, existing: dict[str, str]) -> dict[str, Any]:
@@ -238,10 +279,14 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
     uri = resolve_uri(tracking.uri) if tracking.enabled else None
     resume = find_resume_point(str(train_cfg.resume), uri, ctx.run_dir / "resume") if train_cfg.resume else None
     if resume is not None and resume.algo and resume.algo != typed["algo"].name:
-        raise UserError(f"train.resume: {resume.source} was trained with algo={resume.algo}; "
-                        f"pass algo={resume.algo} to continue it")
-    tracker: Tracker = (MlflowTracker(uri, tracking.experiment, _run_name(cfg, ctx, tracking),
-                                      resume.run_id if resume else None) if uri is not None else Tracker())
+        raise UserError(
+            f"train.resume: {resume.source} was trained with algo={resume.algo}; pass algo={resume.algo} to continue it"
+        )
+    tracker: Tracker = (
+        MlflowTracker(uri, tracking.experiment, _run_name(cfg, ctx, tracking), resume.run_id if resume else None)
+        if uri is not None
+        else Tracker()
+    )
     run = TrainingRun(cfg, ctx, typed, tracker, resume)
     status, summary = "FAILED", {}
     try:

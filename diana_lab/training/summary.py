@@ -40,11 +40,19 @@ def _fmt(value: Any) -> str:
 def summary_frame(r: TrainResult) -> pd.DataFrame:
     s = r.eval_summary
     rows: list[tuple[str, Any]] = [
-        ("status", r.status), ("algo", r.algo), ("timesteps", r.num_timesteps),
-        ("wall time (s)", round(r.wall_time_s, 1)), ("training FPS", round(r.fps, 1)),
+        ("status", r.status),
+        ("algo", r.algo),
+        ("timesteps", r.num_timesteps),
+        ("wall time (s)", round(r.wall_time_s, 1)),
+        ("training FPS", round(r.fps, 1)),
     ]
-    for key, label in (("episodes", "eval episodes"), ("success_rate", "eval success rate"), ("spl", "eval SPL"),
-                       ("collision_rate", "eval collision rate"), ("mean_path_length_m", "eval path length (m)")):
+    for key, label in (
+        ("episodes", "eval episodes"),
+        ("success_rate", "eval success rate"),
+        ("spl", "eval SPL"),
+        ("collision_rate", "eval collision rate"),
+        ("mean_path_length_m", "eval path length (m)"),
+    ):
         if key in s:
             rows.append((label, s[key]))
     rows += [("best eval SPL", r.best_spl), ("run dir", r.run_dir)]

@@ -12,18 +12,26 @@ from gymnasium import spaces
 SENSOR_SPACES = {
     "depth_image": spaces.Box(0.0, 1.0, (1, 12, 16), np.float32),
     "elevation_map": spaces.Box(0.0, 1.0, (2, 20, 16), np.float32),
-    "points": spaces.Box(np.tile(np.array([-1, -1, -1, 0], np.float32), (64, 1)), np.ones((64, 4), np.float32),
-                         dtype=np.float32),
+    "points": spaces.Box(
+        np.tile(np.array([-1, -1, -1, 0], np.float32), (64, 1)),
+        np.ones((64, 4), np.float32),
+        dtype=np.float32,
+    ),
 }
 
 
 class FakeRoverEnv(gym.Env):
     def __init__(self, sensor_key: str = "depth_image", episode_steps: int = 8) -> None:
-        self.observation_space = spaces.Dict({
-            "goal": spaces.Box(np.array([0, -1, -1, -1, -1, -1, -1], np.float32), np.ones(7, np.float32) * 2,
-                               dtype=np.float32),
-            sensor_key: SENSOR_SPACES[sensor_key],
-        })
+        self.observation_space = spaces.Dict(
+            {
+                "goal": spaces.Box(
+                    np.array([0, -1, -1, -1, -1, -1, -1], np.float32),
+                    np.ones(7, np.float32) * 2,
+                    dtype=np.float32,
+                ),
+                sensor_key: SENSOR_SPACES[sensor_key],
+            }
+        )
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.episode_steps, self._t = episode_steps, 0
 

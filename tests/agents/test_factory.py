@@ -51,12 +51,15 @@ def test_tiny_ppo_learns_on_fake_env():
     assert model.num_timesteps == 64
 
 
-@pytest.mark.parametrize(("override", "key"), [
-    ("algo.learning_rate=-1", "algo.learning_rate"),
-    ("algo.net_arch=[64,0]", "algo.net_arch[1]"),
-    ("algo.extractor.elevation_encoder=gru", "algo.extractor.elevation_encoder"),
-    ("algo.n_steps=0", "algo.n_steps"),
-])
+@pytest.mark.parametrize(
+    ("override", "key"),
+    [
+        ("algo.learning_rate=-1", "algo.learning_rate"),
+        ("algo.net_arch=[64,0]", "algo.net_arch[1]"),
+        ("algo.extractor.elevation_encoder=gru", "algo.extractor.elevation_encoder"),
+        ("algo.n_steps=0", "algo.n_steps"),
+    ],
+)
 def test_bad_algo_values_name_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace("[", r"\[").replace("]", r"\]")):
         algo_cfg("ppo", override)

@@ -28,28 +28,33 @@ def test_default_config_validates_every_group():
     assert set(GROUPS) <= set(objects)
 
 
-@pytest.mark.parametrize(("overrides", "key"), [
-    (["world=flat", "world.size_x=-3"], "world.size_x"),
-    (["world=flat", "world.resolution=0"], "world.resolution"),
-    (["world=hills", "world.max_slope_deg=30"], "world.max_slope_deg"),
-    (["world=craters", "world.rock_size=[0.5,0.2]"], "world.rock_size"),
-    (["robot.cruise_speed=-1"], "robot.cruise_speed"),
-    (["robot.turn_speed=0"], "robot.turn_speed"),
-    (["robot.tipover_deg=120"], "robot.tipover_deg"),
-    (["dynamics.controller.position_tolerance=0"], "dynamics.controller.position_tolerance"),
-    (["dynamics=physics", "dynamics.time_step=1.0"], "dynamics.time_step"),
-    (["episode.min_distance=30", "episode.max_distance=8"], "episode.min_distance"),
-    (["episode.max_steps=0"], "episode.max_steps"),
-    (["action_space.size=0"], "action_space.size"),
-])
+@pytest.mark.parametrize(
+    ("overrides", "key"),
+    [
+        (["world=flat", "world.size_x=-3"], "world.size_x"),
+        (["world=flat", "world.resolution=0"], "world.resolution"),
+        (["world=hills", "world.max_slope_deg=30"], "world.max_slope_deg"),
+        (["world=craters", "world.rock_size=[0.5,0.2]"], "world.rock_size"),
+        (["robot.cruise_speed=-1"], "robot.cruise_speed"),
+        (["robot.turn_speed=0"], "robot.turn_speed"),
+        (["robot.tipover_deg=120"], "robot.tipover_deg"),
+        (["dynamics.controller.position_tolerance=0"], "dynamics.controller.position_tolerance"),
+        (["dynamics=physics", "dynamics.time_step=1.0"], "dynamics.time_step"),
+        (["episode.min_distance=30", "episode.max_distance=8"], "episode.min_distance"),
+        (["episode.max_steps=0"], "episode.max_steps"),
+        (["action_space.size=0"], "action_space.size"),
+    ],
+)
 def test_impossible_values_name_the_key(overrides, key):
     cfg = compose(overrides)
     with pytest.raises(ConfigError, match=key.replace(".", r"\.").replace("[", r"\[")):
         validate(cfg)
 
 
-@pytest.mark.parametrize("overrides", [["world.size_xx=3"], ["world=flat", "world.size_x=big"],
-                                        ["world=moon"], ["robot=rover9000"]])
+@pytest.mark.parametrize(
+    "overrides",
+    [["world.size_xx=3"], ["world=flat", "world.size_x=big"], ["world=moon"], ["robot=rover9000"]],
+)
 def test_misspelt_keys_types_and_options_fail_at_composition(overrides):
     with pytest.raises(Exception) as err:
         compose(overrides)
@@ -58,8 +63,12 @@ def test_misspelt_keys_types_and_options_fail_at_composition(overrides):
 
 
 def test_cfg_job_prints_the_composed_config():
-    out = subprocess.run([sys.executable, "-m", "diana_lab", "--cfg", "job", "world=flat"],
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "diana_lab", "--cfg", "job", "world=flat"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert out.returncode == 0, out.stderr
     cfg = OmegaConf.create(out.stdout)
     assert cfg.world.name == "flat" and cfg.robot.name == "jackal"

@@ -58,12 +58,15 @@ def test_huge_actions_are_clipped_to_the_shape():
     assert np.hypot(*mapping.offset(np.array([1e9, -1e9]), 0.3)) == pytest.approx(4.0)
 
 
-@pytest.mark.parametrize(("override", "key"), [
-    ({"size": 0.0}, "action_space.size"),
-    ({"radius": -1.0}, "action_space.radius"),
-    ({"shape": "hexagon"}, "action_space.shape"),
-    ({"frame": "body"}, "action_space.frame"),
-])
+@pytest.mark.parametrize(
+    ("override", "key"),
+    [
+        ({"size": 0.0}, "action_space.size"),
+        ({"radius": -1.0}, "action_space.radius"),
+        ({"shape": "hexagon"}, "action_space.shape"),
+        ({"frame": "body"}, "action_space.frame"),
+    ],
+)
 def test_bad_action_space_configs(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         to_object("action_space", {"name": "x", "shape": "square", **override})

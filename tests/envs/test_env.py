@@ -12,6 +12,7 @@ import diana_lab  # noqa: F401  (registers the env)
 from diana_lab.envs.action_spaces import ActionError
 from diana_lab.envs.rover_nav import RoverNavEnv
 
+
 def make(**kwargs) -> RoverNavEnv:
     kwargs.setdefault("world", "flat")
     return RoverNavEnv(**kwargs)
@@ -36,13 +37,37 @@ def test_gym_make_works_with_defaults():
 
 GRID = [  # every option of every group at least once (world x robot x dynamics x action_space x encoding)
     ["world=flat", "robot=jackal", "dynamics=kinematic", "action_space=square", "sensor=depth_camera"],
-    ["world=hills", "robot=husky", "dynamics=kinematic", "action_space=circle", "sensor=lidar3d",
-     "sensor.encoding=points"],
-    ["world=craters", "robot=rocker_bogie", "dynamics=kinematic", "action_space=square",
-     "sensor.encoding=elevation_map"],
-    ["world=mars_yard", "robot=jackal", "dynamics=physics", "action_space=circle", "sensor=depth_camera_paper"],
-    ["world=flat", "robot=rocker_bogie", "dynamics=physics", "action_space=square", "sensor=lidar3d",
-     "sensor.encoding=elevation_map", "action_space.frame=world"],
+    [
+        "world=hills",
+        "robot=husky",
+        "dynamics=kinematic",
+        "action_space=circle",
+        "sensor=lidar3d",
+        "sensor.encoding=points",
+    ],
+    [
+        "world=craters",
+        "robot=rocker_bogie",
+        "dynamics=kinematic",
+        "action_space=square",
+        "sensor.encoding=elevation_map",
+    ],
+    [
+        "world=mars_yard",
+        "robot=jackal",
+        "dynamics=physics",
+        "action_space=circle",
+        "sensor=depth_camera_paper",
+    ],
+    [
+        "world=flat",
+        "robot=rocker_bogie",
+        "dynamics=physics",
+        "action_space=square",
+        "sensor=lidar3d",
+        "sensor.encoding=elevation_map",
+        "action_space.frame=world",
+    ],
 ]
 
 
@@ -90,8 +115,17 @@ def test_info_carries_what_evaluation_needs():
     env = make()
     env.reset(seed=1)
     _, reward, _, _, info = env.step(np.array([1.0, 0.0], dtype=np.float32))
-    for key in ("waypoint", "waypoint_outcome", "waypoint_reached", "sim_time", "path_length", "max_tilt_deg",
-                "tilt_deg", "reward_terms", "distance_to_goal"):
+    for key in (
+        "waypoint",
+        "waypoint_outcome",
+        "waypoint_reached",
+        "sim_time",
+        "path_length",
+        "max_tilt_deg",
+        "tilt_deg",
+        "reward_terms",
+        "distance_to_goal",
+    ):
         assert key in info
     assert reward == pytest.approx(sum(info["reward_terms"].values()))
     assert info["sim_time"] > 0 and info["path_length"] == pytest.approx(3.5 - 0.2, abs=1e-6)
@@ -136,8 +170,10 @@ def test_collision_terminates_once():
     from diana_lab.sim.world import World
     from diana_lab.sim.worlds import _rock
 
-    rocks = [_rock(np.random.default_rng(i), np.array([4.0, y]), 0.9, 0.0, f"r{i}") for i, y in
-             enumerate(np.arange(-19.0, 19.5, 0.8))]
+    rocks = [
+        _rock(np.random.default_rng(i), np.array([4.0, y]), 0.9, 0.0, f"r{i}")
+        for i, y in enumerate(np.arange(-19.0, 19.5, 0.8))
+    ]
     world = World("wall", Terrain(np.zeros((81, 81)), 40.0, 40.0), rocks)
     env = RoverNavEnv(world="flat", world_instance=world)
     env.reset(seed=0, options={"start": (0.0, 0.0), "goal": (12.0, 0.0), "yaw": 0.0})
@@ -157,7 +193,8 @@ def test_tipover_and_timeout_and_stuck_are_reachable():
     # along the 45-degree side slope (climbing only ~19 degrees, rolling ~43): the rover tips over
     env.reset(seed=0, options={"start": (1.5, -5.0), "goal": (1.8, 5.0), "yaw": math.pi / 2})
     terminated, _, info = run_until_done(
-        env, lambda e: e.mapping.action_for(np.array([1.1, 3.0]), e.pose_estimate.yaw).astype(np.float32))
+        env, lambda e: e.mapping.action_for(np.array([1.1, 3.0]), e.pose_estimate.yaw).astype(np.float32)
+    )
     assert (terminated, info["outcome"]) == (True, "tipover")
     assert info["reward_terms"]["tipover"] < 0
     # straight up the ramp: stuck at its foot, the episode is truncated as "stuck"
@@ -167,8 +204,9 @@ def test_tipover_and_timeout_and_stuck_are_reachable():
     # a policy that only turns: the step limit ends it as a timeout
     env = RoverNavEnv(world="flat", episode={"max_steps": 5})
     env.reset(seed=0)
-    terminated, truncated, info = run_until_done(env, lambda e: e.mapping.action_for(
-        np.array([0.1, 0.0]), e.pose_estimate.yaw).astype(np.float32) * 0)
+    terminated, truncated, info = run_until_done(
+        env, lambda e: e.mapping.action_for(np.array([0.1, 0.0]), e.pose_estimate.yaw).astype(np.float32) * 0
+    )
     assert (terminated, truncated) == (False, True) and info["outcome"] in ("timeout", "stuck")
 
 
@@ -189,3 +227,19 @@ def test_rgb_array_render():
     assert frame.ndim == 3 and frame.shape[2] == 3 and frame.dtype == np.uint8
     assert frame.std() > 5  # not a blank image
     env.close()
+
+
+def test_sampled_goals_are_reachable_inside_the_waypoint_clamp(mars_yard):
+    env = RoverNavEnv(world="mars_yard", world_instance=mars_yard)
+    margin = env.robot.radius + env.episode_cfg.map_margin
+    for seed in range(200):
+        _, info = env.reset(seed=seed)
+        for point in (info["start"], info["goal"]):
+            assert env.world.terrain.contains(point[0], point[1], margin=margin - 1e-9)
+
+
+def test_flat_world_map_is_not_blank(flat_world):
+    from diana_lab.envs.render import hillshade
+
+    image = hillshade(flat_world)
+    assert image.mean() > 60  # a visible mid tone, not black

@@ -37,11 +37,22 @@ def test_heading_is_max_facing_the_goal_and_min_facing_away():
 
 @pytest.mark.parametrize("deadband", [0.0, 5.0, 10.0])
 def test_deadband_is_configurable(deadband):
-    cfg = to_object("reward", {"name": "t", "terms": {
-        "roll": {"fn": "diana_lab.envs.rewards.roll", "weight": 1.0, "params": {"deadband_deg": deadband}}}})
+    cfg = to_object(
+        "reward",
+        {
+            "name": "t",
+            "terms": {
+                "roll": {
+                    "fn": "diana_lab.envs.rewards.roll",
+                    "weight": 1.0,
+                    "params": {"deadband_deg": deadband},
+                }
+            },
+        },
+    )
     manager = RewardManager(cfg)
     assert manager(ctx(roll_deg=deadband - 0.5 if deadband else 0.0))[0] == 0.0
-    assert manager(ctx(roll_deg=deadband + 4.0))[0] == pytest.approx(-math.radians(4.0) ** 2)
+    assert manager(ctx(roll_deg=deadband + 4.0))[0] == pytest.approx(-(math.radians(4.0) ** 2))
 
 
 def test_weight_zero_disables_a_term_and_goal_pays_on_success():
@@ -56,5 +67,12 @@ def test_unknown_term_function_or_parameter_is_a_clear_error():
     with pytest.raises(ConfigError, match=r"reward\.terms\.x\.fn"):
         RewardManager(to_object("reward", {"name": "t", "terms": {"x": {"fn": "diana_lab.envs.rewards.nope"}}}))
     with pytest.raises(ConfigError, match=r"reward\.terms\.roll\.params.*deadband"):
-        RewardManager(to_object("reward", {"name": "t", "terms": {
-            "roll": {"fn": "diana_lab.envs.rewards.roll", "params": {"deadbnd_deg": 3}}}}))
+        RewardManager(
+            to_object(
+                "reward",
+                {
+                    "name": "t",
+                    "terms": {"roll": {"fn": "diana_lab.envs.rewards.roll", "params": {"deadbnd_deg": 3}}},
+                },
+            )
+        )

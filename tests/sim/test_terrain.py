@@ -35,7 +35,9 @@ def test_height_query_is_the_mesh_surface(mars_yard, rng):
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(vertices, triangles.astype(np.uint32))
     xy = rng.uniform(-24.9, 24.9, size=(500, 2))
-    rays = np.column_stack([xy, np.full(500, 10.0), np.zeros(500), np.zeros(500), -np.ones(500)]).astype(np.float32)
+    rays = np.column_stack([xy, np.full(500, 10.0), np.zeros(500), np.zeros(500), -np.ones(500)]).astype(
+        np.float32
+    )
     hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
     np.testing.assert_allclose(10.0 - hit, mars_yard.height(xy[:, 0], xy[:, 1]), atol=1e-4)
 
@@ -55,11 +57,14 @@ def test_grid_from_image_flips_rows_only():
     np.testing.assert_array_equal(grid_from_image(image), image[::-1])
 
 
-@pytest.mark.parametrize(("grid", "size", "message"), [
-    (np.full((3, 3), np.nan), (1.0, 1.0), "NaN"),
-    (np.zeros(5), (1.0, 1.0), "2-D grid"),
-    (np.zeros((3, 3)), (0.0, 1.0), "positive sizes"),
-])
+@pytest.mark.parametrize(
+    ("grid", "size", "message"),
+    [
+        (np.full((3, 3), np.nan), (1.0, 1.0), "NaN"),
+        (np.zeros(5), (1.0, 1.0), "2-D grid"),
+        (np.zeros((3, 3)), (0.0, 1.0), "positive sizes"),
+    ],
+)
 def test_bad_terrain_is_rejected(grid, size, message):
     with pytest.raises(ValueError, match=message):
         Terrain(grid, *size)

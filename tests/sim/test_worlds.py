@@ -60,8 +60,19 @@ def test_dem_world_reads_user_files(tmp_path, suffix):
         np.save(path, grid)
     else:
         Image.fromarray((grid * 65535).astype(np.uint16)).save(path)
-    world = build(to_object("world", {"name": "dem", "path": str(path), "size_x": 30.0, "size_y": 20.0,
-                                      "height_scale": 2.0, "height_offset": 1.0}))
+    world = build(
+        to_object(
+            "world",
+            {
+                "name": "dem",
+                "path": str(path),
+                "size_x": 30.0,
+                "size_y": 20.0,
+                "height_scale": 2.0,
+                "height_offset": 1.0,
+            },
+        )
+    )
     assert world.terrain.shape == (20, 30)
     assert world.height(0.0, -10.0) == pytest.approx(3.0, abs=1e-3)  # south edge: image bottom row, 1 * 2 + 1
     assert world.height(0.0, 10.0) == pytest.approx(1.0, abs=1e-3)
@@ -74,20 +85,33 @@ def test_dem_world_with_obstacle_mesh(tmp_path):
     box = o3d.geometry.TriangleMesh.create_box(1.0, 1.0, 1.0)
     box.translate((2.0, 2.0, 0.0))
     o3d.io.write_triangle_mesh(str(tmp_path / "box.obj"), box)
-    world = build(to_object("world", {"name": "dem", "path": str(tmp_path / "g.npy"), "size_x": 10.0,
-                                      "size_y": 10.0, "obstacles": [str(tmp_path / "box.obj")]}))
+    world = build(
+        to_object(
+            "world",
+            {
+                "name": "dem",
+                "path": str(tmp_path / "g.npy"),
+                "size_x": 10.0,
+                "size_y": 10.0,
+                "obstacles": [str(tmp_path / "box.obj")],
+            },
+        )
+    )
     assert len(world.obstacles) == 1
     assert world.obstacle_map.lookup(np.array([2.5]), np.array([2.5]))[0] == pytest.approx(1.0, abs=1e-3)
     assert world.obstacle_map.lookup(np.array([-2.0]), np.array([-2.0]))[0] == 0.0
 
 
-@pytest.mark.parametrize(("setup", "key", "expected"), [
-    ("missing", "world.path", "file not found"),
-    ("nan", "world.path", "NaN"),
-    ("garbage", "world.path", "could not read"),
-    ("txt", "world.path", "unsupported format"),
-    ("mesh", "world.obstacles[0]", "not found"),
-])
+@pytest.mark.parametrize(
+    ("setup", "key", "expected"),
+    [
+        ("missing", "world.path", "file not found"),
+        ("nan", "world.path", "NaN"),
+        ("garbage", "world.path", "could not read"),
+        ("txt", "world.path", "unsupported format"),
+        ("mesh", "world.obstacles[0]", "not found"),
+    ],
+)
 def test_dem_errors_name_the_key_and_file(tmp_path, setup, key, expected):
     path = tmp_path / "dem.npy"
     obstacles = []
@@ -103,6 +127,10 @@ def test_dem_errors_name_the_key_and_file(tmp_path, setup, key, expected):
         np.save(path, np.zeros((4, 4)))
         obstacles = [str(tmp_path / "nope.obj")]
     with pytest.raises(ConfigError) as err:
-        build(to_object("world", {"name": "dem", "path": str(path), "size_x": 5.0, "size_y": 5.0,
-                                  "obstacles": obstacles}))
+        build(
+            to_object(
+                "world",
+                {"name": "dem", "path": str(path), "size_x": 5.0, "size_y": 5.0, "obstacles": obstacles},
+            )
+        )
     assert key in str(err.value) and expected in str(err.value)

@@ -12,18 +12,35 @@ from mlflow.tracking import MlflowClient
 ROOT = Path(__file__).resolve().parents[2]
 
 # a flat world, a 16 x 12 camera, short episodes, 2 evaluation episodes without plots or GIF
-TINY = ["world=flat", "sensor.width=16", "sensor.height=12", "episode.max_steps=20", "train.n_envs=2",
-        "train.total_timesteps=256", "train.checkpoint_every=128", "train.progress_bar=false",
-        "eval.episodes=2", "eval.every=128", "eval.plots=false", "eval.video=false",
-        "algo.net_arch=[16]", "algo.extractor.cnn_channels=[4]", "algo.extractor.sensor_features=8",
-        "algo.extractor.goal_hidden=[8]", "hydra/job_logging=disabled", "hydra/hydra_logging=disabled"]
+TINY = [
+    "world=flat",
+    "sensor.width=16",
+    "sensor.height=12",
+    "episode.max_steps=20",
+    "train.n_envs=2",
+    "train.total_timesteps=256",
+    "train.checkpoint_every=128",
+    "train.progress_bar=false",
+    "eval.episodes=2",
+    "eval.every=128",
+    "eval.plots=false",
+    "eval.video=false",
+    "algo.net_arch=[16]",
+    "algo.extractor.cnn_channels=[4]",
+    "algo.extractor.sensor_features=8",
+    "algo.extractor.goal_hidden=[8]",
+    "hydra/job_logging=disabled",
+    "hydra/hydra_logging=disabled",
+]
 
 # per algorithm: enough to run an update within the budget
 ALGO_TINY = {
     "ppo": ["algo.n_steps=64", "algo.batch_size=64", "algo.n_epochs=1"],
     "a2c": ["algo.n_steps=8"],
-    **{a: ["algo.learning_starts=64", "algo.batch_size=16", "algo.buffer_size=1000"]
-       for a in ("sac", "td3", "ddpg", "tqc")},
+    **{
+        a: ["algo.learning_starts=64", "algo.batch_size=16", "algo.buffer_size=1000"]
+        for a in ("sac", "td3", "ddpg", "tqc")
+    },
 }
 
 
@@ -49,8 +66,15 @@ def run_in_process(args: list[str]) -> int:
 def run_subprocess(args: list[str], cwd: Path, **kwargs) -> subprocess.Popen:
     env = {**os.environ, "PYTHONHASHSEED": "0"}
     env.pop("HYDRA_FULL_ERROR", None)
-    return subprocess.Popen([sys.executable, "-m", "diana_lab", *args], cwd=cwd, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, **kwargs)
+    return subprocess.Popen(
+        [sys.executable, "-m", "diana_lab", *args],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kwargs,
+    )
 
 
 def runs(tmp: Path, experiment: str = "diana_lab"):

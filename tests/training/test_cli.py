@@ -11,27 +11,40 @@ import pytest
 from .helpers import ALGO_TINY, TINY, run_subprocess, runs, store_args
 
 
-@pytest.mark.parametrize(("override", "expected"), [
-    ("algo=ppx", "Could not find 'algo/ppx'"),
-    ("train.total_timestep=10", "train.total_timestep"),
-])
+@pytest.mark.parametrize(
+    ("override", "expected"),
+    [
+        ("algo=ppx", "Could not find 'algo/ppx'"),
+        ("train.total_timestep=10", "train.total_timestep"),
+    ],
+)
 def test_misspelling_exits_non_zero_without_traceback(override, expected, tmp_path):
     proc = run_subprocess([override, *store_args(tmp_path)], cwd=tmp_path)
-    out, err = proc.communicate(timeout=120)
+    _, err = proc.communicate(timeout=120)
     assert proc.returncode != 0
     assert expected in err
     assert "Traceback" not in err
     assert not (tmp_path / "mlflow.db").exists()
 
 
-@pytest.mark.parametrize(("sig", "code"), [
-    (signal.SIGINT, 130),
-    pytest.param(signal.SIGTERM, 143, marks=pytest.mark.slow),
-])
+@pytest.mark.parametrize(
+    ("sig", "code"),
+    [
+        (signal.SIGINT, 130),
+        pytest.param(signal.SIGTERM, 143, marks=pytest.mark.slow),
+    ],
+)
 def test_interrupt_saves_checkpoint_and_marks_run_killed(sig, code, tmp_path):
     # no periodic checkpoints: the only one is what the interrupt saves
-    args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=1000000", "train.checkpoint_every=0",
-            "eval.every=0", *store_args(tmp_path)]
+    args = [
+        "algo=ppo",
+        *TINY,
+        *ALGO_TINY["ppo"],
+        "train.total_timesteps=1000000",
+        "train.checkpoint_every=0",
+        "eval.every=0",
+        *store_args(tmp_path),
+    ]
     proc = run_subprocess(args, cwd=tmp_path)
     deadline = time.monotonic() + 180
     for line in proc.stdout:  # SB3's console table is flushed after every update
@@ -45,10 +58,11 @@ def test_interrupt_saves_checkpoint_and_marks_run_killed(sig, code, tmp_path):
         proc.kill()
         raise
     assert proc.returncode == code, err
-    assert "Traceback" not in err and "interrupted at" in err
-    assert any((tmp_path / "run" / "checkpoints").glob("rl_model_*_steps.zip"))
-    client, (run,) = runs(tmp_path)
-    assert run.info.status == "KILLED"
+    assert "Traceback" not in err and "interrupted at" in err, err
+    assert any((tmp_path / "run" / "checkpoints").glob("rl_model_*_steps.zip")), err
+    client, found = runs(tmp_path)
+    assert [r.info.status for r in found] == ["KILLED"], err
+    run = found[0]
     ckpts = [a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")]
     assert len(ckpts) == 1 and ckpts[0].endswith("_steps.zip")
     steps = int(ckpts[0].rsplit("_", 2)[-2])

@@ -7,8 +7,14 @@ from hydra.utils import get_class
 
 from .helpers import ALGO_TINY, TINY, run_in_process, runs, store_args
 
-CLASSES = {"ppo": "stable_baselines3.PPO", "a2c": "stable_baselines3.A2C", "sac": "stable_baselines3.SAC",
-           "td3": "stable_baselines3.TD3", "ddpg": "stable_baselines3.DDPG", "tqc": "sb3_contrib.TQC"}
+CLASSES = {
+    "ppo": "stable_baselines3.PPO",
+    "a2c": "stable_baselines3.A2C",
+    "sac": "stable_baselines3.SAC",
+    "td3": "stable_baselines3.TD3",
+    "ddpg": "stable_baselines3.DDPG",
+    "tqc": "sb3_contrib.TQC",
+}
 
 
 @pytest.mark.parametrize("algo", list(ALGO_TINY))
@@ -43,8 +49,17 @@ def test_resume_continues_step_counter_and_run(tmp_path):
     base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "eval.every=0", "train.final_eval=false"]
     assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
     client, (run,) = runs(tmp_path)
-    assert run_in_process([*base, "train.total_timesteps=512", f"train.resume={run.info.run_id}",
-                           *store_args(tmp_path, "second")]) == 0
+    assert (
+        run_in_process(
+            [
+                *base,
+                "train.total_timesteps=512",
+                f"train.resume={run.info.run_id}",
+                *store_args(tmp_path, "second"),
+            ]
+        )
+        == 0
+    )
     client, found = runs(tmp_path)
     assert len(found) == 1  # the same MLflow run, not a new one
     run = client.get_run(run.info.run_id)
@@ -64,8 +79,18 @@ def test_resume_from_run_dir_and_finished_budget_is_a_clear_error(tmp_path, caps
 
 
 def test_multirun_gives_one_run_per_job(tmp_path):
-    args = ["-m", "algo=ppo", "seed=0,1", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=64", "eval.every=0",
-            "train.final_eval=false", f"tracking.uri=sqlite:///{tmp_path}/mlflow.db", f"hydra.sweep.dir={tmp_path}/multi"]
+    args = [
+        "-m",
+        "algo=ppo",
+        "seed=0,1",
+        *TINY,
+        *ALGO_TINY["ppo"],
+        "train.total_timesteps=64",
+        "eval.every=0",
+        "train.final_eval=false",
+        f"tracking.uri=sqlite:///{tmp_path}/mlflow.db",
+        f"hydra.sweep.dir={tmp_path}/multi",
+    ]
     assert run_in_process(args) == 0
     _, found = runs(tmp_path)
     assert sorted(r.data.tags["seed"] for r in found) == ["0", "1"]
@@ -74,18 +99,29 @@ def test_multirun_gives_one_run_per_job(tmp_path):
 
 
 def test_tracking_disabled_writes_no_store(tmp_path):
-    args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=64", "eval.every=0", "train.final_eval=false",
-            "tracking.enabled=false", *store_args(tmp_path)]
+    args = [
+        "algo=ppo",
+        *TINY,
+        *ALGO_TINY["ppo"],
+        "train.total_timesteps=64",
+        "eval.every=0",
+        "train.final_eval=false",
+        "tracking.enabled=false",
+        *store_args(tmp_path),
+    ]
     assert run_in_process(args) == 0
     assert not (tmp_path / "mlflow.db").exists()
     assert (tmp_path / "run" / "model" / "model.zip").is_file()
 
 
-@pytest.mark.parametrize(("override", "message"), [
-    ("train.n_envs=0", "train.n_envs"),
-    ("train.vec_env=threads", "train.vec_env"),
-    ("train.resume=/no/such/dir", "train.resume"),
-])
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("train.n_envs=0", "train.n_envs"),
+        ("train.vec_env=threads", "train.vec_env"),
+        ("train.resume=/no/such/dir", "train.resume"),
+    ],
+)
 def test_bad_values_exit_2_without_a_run(override, message, tmp_path, capsys):
     assert run_in_process(["algo=ppo", *TINY, override, *store_args(tmp_path)]) == 2
     err = capsys.readouterr().err

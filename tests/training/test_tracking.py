@@ -19,8 +19,14 @@ class Recorder(Tracker):
 
 
 def test_flatten_joins_keys_and_truncates_long_values():
-    flat = flatten({"algo": {"lr": 0.1, "net_arch": [64, 64], "extractor": {"k": None}}, "big": "x" * 10_000,
-                    "k" * 300: 1, "empty": {}})
+    flat = flatten(
+        {
+            "algo": {"lr": 0.1, "net_arch": [64, 64], "extractor": {"k": None}},
+            "big": "x" * 10_000,
+            "k" * 300: 1,
+            "empty": {},
+        }
+    )
     assert flat["algo.lr"] == "0.1"
     assert flat["algo.net_arch"] == "[64, 64]"
     assert flat["algo.extractor.k"] == "None"
@@ -30,19 +36,39 @@ def test_flatten_joins_keys_and_truncates_long_values():
 
 
 def test_numeric_metrics_expands_intervals_and_drops_nan():
-    m = numeric_metrics({"success_rate": 0.5, "success_rate_ci95": [0.2, 0.8], "spl": math.nan, "name": "x",
-                         "episodes": 10}, "eval/")
-    assert m == {"eval/success_rate": 0.5, "eval/success_rate_ci95_lo": 0.2, "eval/success_rate_ci95_hi": 0.8,
-                 "eval/episodes": 10.0}
+    m = numeric_metrics(
+        {"success_rate": 0.5, "success_rate_ci95": [0.2, 0.8], "spl": math.nan, "name": "x", "episodes": 10},
+        "eval/",
+    )
+    assert m == {
+        "eval/success_rate": 0.5,
+        "eval/success_rate_ci95_lo": 0.2,
+        "eval/success_rate_ci95_hi": 0.8,
+        "eval/episodes": 10.0,
+    }
 
 
 def test_writer_forwards_scalars_only_and_honours_exclusion():
     rec = Recorder()
     MLflowOutputFormat(rec).write(
-        {"rollout/ep_rew_mean": np.float32(1.5), "time/fps": 100, "eval/spl": 0.3, "note": "text",
-         "train/nan": float("nan"), "flag": True},
-        {"rollout/ep_rew_mean": None, "time/fps": None, "eval/spl": ("mlflow",), "note": None, "train/nan": None,
-         "flag": None}, step=42)
+        {
+            "rollout/ep_rew_mean": np.float32(1.5),
+            "time/fps": 100,
+            "eval/spl": 0.3,
+            "note": "text",
+            "train/nan": float("nan"),
+            "flag": True,
+        },
+        {
+            "rollout/ep_rew_mean": None,
+            "time/fps": None,
+            "eval/spl": ("mlflow",),
+            "note": None,
+            "train/nan": None,
+            "flag": None,
+        },
+        step=42,
+    )
     assert rec.logged == [({"rollout/ep_rew_mean": 1.5, "time/fps": 100.0}, 42)]
 
 

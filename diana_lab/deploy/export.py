@@ -1,0 +1,362 @@
+"""Torch side of the deployment: a trained SB3 policy -> ``policy.onnx`` + ``policy.json`` (the sidecar).
+
+The graph holds everything between the observation and the waypoint offset, so that the runtime cannot
+get any of it subtly wrong:
+
+1. VecNormalize observation normalisation, ``clip((x - mean) / sqrt(var + eps), -clip_obs, clip_obs)``,
+   with the training run's statistics baked in as constants (only the keys it normalised);
+2. the features extractor and the actor, deterministic (the Gaussian mean; ``tanh`` of it for squashed
+   actors such as SAC/TD3/TQC);
+3. SB3's ``predict`` post-processing (unscale a squashed action, else clip to the action space) and the env's
+   clip to [-1, 1];
+4. the action -> waypoint-offset mapping of :class:`diana_lab.envs.action_spaces.WaypointMapping` (square or
+   Shirley-Chiu disc, scaled, ``min_distance`` push-out) in the ACTION frame. Turning it by the yaw
+   (``frame=rover``) and adding the position is left to the runtime, in float64 numpy.
+
+Inputs ``goal`` ``(B, 7)`` and the encoding ``(B, ...)`` (batch dynamic); outputs ``offset`` and ``action``,
+``(B, 2)`` each. The exporter is torch's TorchScript-based one (``dynamo=False``): it works offline without
+onnxscript. It cannot export an adaptive average pool whose output does not divide its input (the paper's
+112 x 112 camera), so every ``AdaptiveAvgPool2d`` is replaced by the same average written as two
+constant matrix products.
+
+Importing this module imports torch; :mod:`diana_lab.deploy` itself never does.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import dataclasses
+import datetime as dt
+import math
+import warnings
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+import diana_lab
+from diana_lab.config import ConfigError
+from diana_lab.config.env import ActionSpaceConfig, EpisodeConfig
+from diana_lab.config.sensing import DepthCameraConfig, Lidar3dConfig, SensorConfig
+from diana_lab.deploy.spec import ActionSpec, EncodingSpec, PolicySpec, SensorSpec, sidecar_path
+
+__all__ = ["ExportablePolicy", "export_policy", "expected_shape", "policy_spec"]
+
+DEFAULT_OPSET = 17  # what onnxruntime >= 1.14 and TensorRT 8.6 (JetPack 5/6) both run
+VERIFY_TOLERANCE = 1e-4  # metres: ONNX vs torch on random observations, checked at every export
+
+
+# ---------------------------------------------------------------------------------------------- graph parts
+def _pool_matrix(n_in: int, n_out: int) -> torch.Tensor:
+    """``(n_out, n_in)`` averaging weights of PyTorch's adaptive pooling (bins floor(i n/m) .. ceil((i+1) n/m))."""
+    m = torch.zeros(n_out, n_in)
+    for i in range(n_out):
+        start, end = (i * n_in) // n_out, -((-(i + 1) * n_in) // n_out)
+        m[i, start:end] = 1.0 / (end - start)
+    return m
+
+
+class MatmulAdaptiveAvgPool2d(nn.Module):
+    """``AdaptiveAvgPool2d`` for one fixed input size as ``rows @ x @ cols^T`` (exportable for any size)."""
+
+    def __init__(self, in_hw: tuple[int, int], out_hw: tuple[int, int]) -> None:
+        super().__init__()
+        self.register_buffer("rows", _pool_matrix(in_hw[0], out_hw[0]))
+        self.register_buffer("cols_t", _pool_matrix(in_hw[1], out_hw[1]).T.contiguous())
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return torch.matmul(torch.matmul(self.rows, x), self.cols_t)
+
+
+def _replace_adaptive_pools(module: nn.Module, example: dict[str, torch.Tensor], run: Any) -> None:
+    """Swap every ``AdaptiveAvgPool2d`` in ``module`` for its matmul form, sized by one forward pass."""
+    sizes: dict[str, tuple[int, int]] = {}
+    hooks = []
+    for name, sub in module.named_modules():
+        if isinstance(sub, nn.AdaptiveAvgPool2d):
+            hooks.append(sub.register_forward_pre_hook(
+                lambda _m, args, name=name: sizes.__setitem__(name, tuple(args[0].shape[-2:]))))
+    with torch.no_grad():
+        run(example)
+    for h in hooks:
+        h.remove()
+    for name, (h, w) in sizes.items():
+        parent_name, _, child = name.rpartition(".")
+        parent = module.get_submodule(parent_name) if parent_name else module
+        pool = getattr(parent, child)
+        out = pool.output_size if isinstance(pool.output_size, tuple | list) else (pool.output_size,) * 2
+        out_hw = (h if out[0] is None else int(out[0]), w if out[1] is None else int(out[1]))
+        setattr(parent, child, MatmulAdaptiveAvgPool2d((h, w), out_hw))
+
+
+def square_to_disc(a: torch.Tensor) -> torch.Tensor:
+    """Torch twin of :func:`diana_lab.envs.action_spaces.square_to_disc` for ``(B, 2)`` actions."""
+    x, y = a[:, 0], a[:, 1]
+    one = torch.ones_like(x)
+    use_x = x.abs() > y.abs()
+    safe_x = torch.where(x == 0, one, x)
+    safe_y = torch.where(y == 0, one, y)
+    r = torch.where(use_x, x, y)
+    q = math.pi / 4.0
+    theta = torch.where(use_x, q * (y / safe_x), math.pi / 2 - q * (x / safe_y))
+    theta = torch.where((x == 0) & (y == 0), torch.zeros_like(x), theta)
+    return torch.stack([r * torch.cos(theta), r * torch.sin(theta)], dim=-1)
+
+
+class ExportablePolicy(nn.Module):
+    """``(goal, encoding) -> (offset, action)``: normalisation, deterministic actor, clipping, mapping."""
+
+    def __init__(self, policy: nn.Module, sensor_key: str, normalization: dict[str, tuple[np.ndarray, np.ndarray]],
+                 clip_obs: float, action: ActionSpec) -> None:
+        super().__init__()
+        self.policy = policy
+        self.sensor_key = sensor_key
+        self.keys = ("goal", sensor_key)
+        self.norm_keys = tuple(k for k in self.keys if k in normalization)
+        for key in self.norm_keys:
+            mean, std = normalization[key]
+            self.register_buffer(f"mean_{key}", torch.as_tensor(mean, dtype=torch.float32))
+            self.register_buffer(f"std_{key}", torch.as_tensor(std, dtype=torch.float32))
+        self.clip_obs = float(clip_obs)
+        space = policy.action_space
+        self.register_buffer("low", torch.as_tensor(space.low, dtype=torch.float32))
+        self.register_buffer("high", torch.as_tensor(space.high, dtype=torch.float32))
+        self.squash = bool(policy.squash_output)
+        self.action = action
+
+    def normalized(self, obs: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        out = dict(obs)
+        for key in self.norm_keys:
+            x = (obs[key] - getattr(self, f"mean_{key}")) / getattr(self, f"std_{key}")
+            out[key] = torch.clamp(x, -self.clip_obs, self.clip_obs)
+        return out
+
+    def actor(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The deterministic action as ``model.predict`` returns it, then the env's clip to [-1, 1]."""
+        a = self.policy._predict(self.normalized(obs), deterministic=True).reshape(-1, 2)
+        if self.squash:
+            a = self.low + 0.5 * (a + 1.0) * (self.high - self.low)  # BasePolicy.unscale_action
+        else:
+            a = torch.maximum(torch.minimum(a, self.high), self.low)
+        return torch.clamp(a, -1.0, 1.0)
+
+    def mapping(self, a: torch.Tensor) -> torch.Tensor:
+        """Action -> offset in the action frame (``WaypointMapping.offset`` without the yaw rotation)."""
+        local = (square_to_disc(a) if self.action.shape == "circle" else a) * self.action.extent
+        d = self.action.min_distance
+        if d > 0:
+            norm = torch.sqrt(torch.sum(local * local, dim=-1, keepdim=True))
+            forward = torch.tensor([[1.0, 0.0]], dtype=local.dtype).expand_as(local)
+            unit = torch.where(norm > 1e-9, local / torch.clamp(norm, min=1e-12), forward)
+            local = torch.where(norm < d, unit * d, local)
+        return local
+
+    def forward(self, goal: torch.Tensor, encoding: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        a = self.actor({"goal": goal, self.sensor_key: encoding})
+        return self.mapping(a), a
+
+
+# ---------------------------------------------------------------------------------------------- sidecar
+def expected_shape(sensor: SensorConfig) -> tuple[int, ...]:
+    """The encoding's tensor shape for a sensor config (without building the sensor or a world)."""
+    if sensor.encoding == "elevation_map":
+        return (2, *sensor.elevation_map.shape)
+    if sensor.encoding == "points":
+        return (sensor.points.n_points, 4)
+    if isinstance(sensor, DepthCameraConfig):
+        return (1, sensor.height, sensor.width)
+    if isinstance(sensor, Lidar3dConfig):
+        return (1, sensor.beams, sensor.columns)
+    raise ConfigError(f"sensor: cannot export a policy for sensor type {type(sensor).__name__}")
+
+
+def sensor_spec(sensor: SensorConfig) -> SensorSpec:
+    common = {"mount_xyz": tuple(float(v) for v in sensor.mount_xyz), "mount_pitch_deg": float(sensor.mount_pitch_deg),
+              "min_range": float(sensor.min_range), "max_range": float(sensor.max_range)}
+    if isinstance(sensor, DepthCameraConfig):
+        return SensorSpec(type="depth_camera", width=sensor.width, height=sensor.height,
+                          hfov_deg=float(sensor.hfov_deg), vfov_deg=float(sensor.vfov_deg), **common)
+    if isinstance(sensor, Lidar3dConfig):
+        return SensorSpec(type="lidar3d", beams=sensor.beams, vfov_min_deg=float(sensor.vfov_min_deg),
+                          vfov_max_deg=float(sensor.vfov_max_deg), columns=sensor.columns, **common)
+    raise ConfigError(f"sensor: cannot export a policy for sensor type {type(sensor).__name__}")
+
+
+def encoding_spec(sensor: SensorConfig) -> EncodingSpec:
+    from diana_lab.sensing.encoders import NO_RETURN, UNKNOWN_HEIGHT
+
+    shape = expected_shape(sensor)
+    if sensor.encoding == "depth_image":
+        params: dict[str, Any] = {"no_return": NO_RETURN}
+    elif sensor.encoding == "elevation_map":
+        params = {**dataclasses.asdict(sensor.elevation_map), "unknown_height": UNKNOWN_HEIGHT}
+    else:
+        scale = float(sensor.max_range) + float(np.linalg.norm(sensor.mount_xyz))  # as make_encoder
+        params = {**dataclasses.asdict(sensor.points), "scale": scale}
+    return EncodingSpec(sensor.encoding, shape, params)
+
+
+def action_spec(action: ActionSpaceConfig) -> ActionSpec:
+    return ActionSpec(shape=action.shape, size=float(action.size), radius=float(action.radius), frame=action.frame,
+                      min_distance=float(action.min_distance))
+
+
+def _normalization(vecnormalize: Any, keys: tuple[str, ...]) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]],
+                                                                       float]:
+    """``{key: (mean, std)}`` of the observation keys VecNormalize normalised, and its ``clip_obs``."""
+    if vecnormalize is None or not getattr(vecnormalize, "norm_obs", False):
+        return {}, math.inf
+    rms = vecnormalize.obs_rms
+    norm_keys = vecnormalize.norm_obs_keys or list(keys)
+    out = {}
+    for key in norm_keys:
+        stats = rms[key] if isinstance(rms, dict) else rms
+        out[key] = (np.asarray(stats.mean, dtype=np.float64),
+                    np.sqrt(np.asarray(stats.var, dtype=np.float64) + vecnormalize.epsilon))
+    return out, float(vecnormalize.clip_obs)
+
+
+def policy_spec(model: Any, sensor: SensorConfig, action: ActionSpaceConfig, episode: EpisodeConfig,
+                normalization: dict[str, Any], source: dict[str, Any], opset: int) -> PolicySpec:
+    """The sidecar of a model trained with these ``sensor``, ``action_space`` and ``episode`` groups."""
+    enc = encoding_spec(sensor)
+    goal_space = model.observation_space["goal"]
+    return PolicySpec(
+        sensor=sensor_spec(sensor), encoding=enc, action_space=action_spec(action),
+        distance_scale=float(episode.distance_scale),
+        goal_low=tuple(float(v) for v in np.asarray(goal_space.low, dtype=np.float32)),
+        goal_high=tuple(float(v) for v in np.asarray(goal_space.high, dtype=np.float32)),
+        inputs={"goal": [-1, 7], enc.name: [-1, *enc.shape]}, outputs={"offset": [-1, 2], "action": [-1, 2]},
+        normalization=normalization, source=source, diana_lab_version=diana_lab.__version__, opset=opset,
+    )
+
+
+# ---------------------------------------------------------------------------------------------- export
+def _check_model(model: Any, sensor: SensorConfig, label: str) -> str:
+    """The model's sensor key, after checking it is exportable and fits ``sensor`` (naming what differs)."""
+    policy = getattr(model, "policy", None)
+    if policy is None or not hasattr(policy, "_predict"):
+        raise ConfigError(f"policy {label}: {type(model).__name__} has no SB3 policy to export")
+    if "lstm" in type(policy).__name__.lower() or hasattr(policy, "lstm_actor"):
+        raise ConfigError(f"policy {label}: recurrent policies need their hidden state carried between calls; "
+                          "exporting them is not supported")
+    space = model.observation_space
+    keys = sorted(getattr(space, "spaces", {}))
+    if "goal" not in keys or len(keys) != 2:
+        raise ConfigError(f"policy {label}: expected a Dict observation of 'goal' and one sensor key, got {keys}")
+    key = next(k for k in keys if k != "goal")
+    want = expected_shape(sensor)
+    got = tuple(space[key].shape)
+    if key != sensor.encoding or got != want:
+        raise ConfigError(f"policy {label}: observes '{key}' {got}, but the sensor config gives "
+                          f"'{sensor.encoding}' {want}; export with the sensor settings it was trained with")
+    if tuple(model.action_space.shape) != (2,):
+        raise ConfigError(f"policy {label}: expected a (2,) action, got {model.action_space.shape}")
+    return key
+
+
+@contextlib.contextmanager
+def _quiet_export() -> Iterator[None]:
+    """No distribution argument checks (data-dependent branches break tracing) and no exporter chatter."""
+    validate = torch.distributions.Distribution._validate_args
+    torch.distributions.Distribution.set_default_validate_args(False)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield
+    finally:
+        torch.distributions.Distribution.set_default_validate_args(validate)
+
+
+def _samples(model: Any, key: str, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    space = model.observation_space
+    rng = np.random.default_rng(seed)
+
+    def draw(box: Any) -> np.ndarray:
+        low, high = np.broadcast_to(box.low, box.shape), np.broadcast_to(box.high, box.shape)
+        return rng.uniform(low, high, (n, *box.shape)).astype(np.float32)
+
+    return draw(space["goal"]), draw(space[key])
+
+
+def export_policy(model: Any, vecnormalize: Any, sensor: SensorConfig, action: ActionSpaceConfig,
+                  episode: EpisodeConfig, output: str | Path, opset: int = DEFAULT_OPSET,
+                  source: dict[str, Any] | None = None) -> PolicySpec:
+    """Write ``output`` (ONNX) and its sidecar; check the graph against torch on random observations."""
+    import onnx
+    import onnxruntime as ort
+
+    label = str((source or {}).get("label", "model"))
+    key = _check_model(model, sensor, label)
+    act = action_spec(action)
+    norm, clip_obs = _normalization(vecnormalize, ("goal", key))
+    policy = model.policy
+    policy.set_training_mode(False)
+    reference = ExportablePolicy(policy, key, norm, clip_obs, act).eval()
+    graph = ExportablePolicy(copy.deepcopy(policy), key, norm, clip_obs, act).eval()
+    goal0, enc0 = _samples(model, key, 1)
+    with _quiet_export():
+        _replace_adaptive_pools(graph.policy, {"goal": torch.from_numpy(goal0), key: torch.from_numpy(enc0)},
+                                graph.actor)
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    with _quiet_export(), torch.no_grad():
+        torch.onnx.export(
+            graph, (torch.from_numpy(goal0), torch.from_numpy(enc0)), str(output), input_names=["goal", key],
+            output_names=["offset", "action"], opset_version=opset, dynamo=False,
+            dynamic_axes={n: {0: "batch"} for n in ("goal", key, "offset", "action")},
+        )
+    onnx.checker.check_model(str(output))
+    goal, enc = _samples(model, key, 16, seed=1)
+    with torch.no_grad():
+        want = reference(torch.from_numpy(goal), torch.from_numpy(enc))[0].numpy()
+    session = ort.InferenceSession(str(output), providers=["CPUExecutionProvider"])
+    got = session.run(["offset"], {"goal": goal, key: enc})[0]
+    err = float(np.max(np.abs(got - want)))
+    if not err <= VERIFY_TOLERANCE:
+        raise RuntimeError(f"export: the ONNX graph differs from the torch policy by {err:.2e} m on random "
+                           f"observations (tolerance {VERIFY_TOLERANCE}); '{output}' is not usable")
+    normalization = {"baked_into_graph": True, "keys": sorted(norm), "clip_obs": clip_obs if norm else None}
+    src = {**(source or {}), "algorithm": type(model).__name__, "torch": torch.__version__,
+           "exported_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"), "export_check_max_error_m": err}
+    spec = policy_spec(model, sensor, action, episode, normalization, src, opset)
+    spec.save(sidecar_path(output))
+    return spec
+
+
+def run(cfg: Any) -> PolicySpec:
+    """``python -m diana_lab.export``: load ``cfg.policy`` with the evaluation's loader, export it."""
+    from omegaconf import OmegaConf
+
+    from diana_lab.cli import UserError
+    from diana_lab.config import to_object
+    from diana_lab.evaluation.loading import load_policy
+
+    if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
+        raise UserError("policy: expected policy=<MLflow run id | model .zip or run folder | pretrained>, e.g. "
+                        "python -m diana_lab.export policy=outputs/run/model output=policy.onnx")
+    loaded = load_policy(str(cfg.policy), cfg, to_object("eval", cfg.eval))
+    if loaded.model is None:
+        raise UserError(f"policy={cfg.policy}: a classical baseline, not a trained policy; nothing to export")
+    train_cfg = loaded.train_cfg
+    if train_cfg is None:
+        print(f"warning: no training config found with {loaded.label}; the sidecar takes sensor, action_space "
+              "and episode from this command's config -- make sure they match the training run")
+
+    def group(name: str) -> Any:
+        node = train_cfg[name] if train_cfg is not None and name in train_cfg else cfg[name]
+        return to_object(name, node)
+
+    source = {"policy": str(cfg.policy), "label": loaded.label, "run_id": loaded.run_id,
+              "config": "training" if train_cfg is not None else "command line"}
+    spec = export_policy(loaded.model, loaded.policy.vecnormalize, group("sensor"), group("action_space"),
+                         group("episode"), Path(str(cfg.output)).expanduser(), int(cfg.opset), source)
+    out = Path(str(cfg.output)).expanduser()
+    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "
+          f"{spec.encoding.shape} from a {spec.sensor.type}, {spec.action_space.shape} action space "
+          f"({spec.action_space.frame} frame); load with diana_lab.deploy.Navigator.from_files('{out}')")
+    return spec

@@ -1,0 +1,114 @@
+"""Frames and ray patterns of the trained sensor, in numpy only (no open3d, no gymnasium, no torch).
+
+These mirror :mod:`diana_lab.sensing.transforms`, :func:`diana_lab.sensing.camera.pinhole_pattern` and
+:func:`diana_lab.sensing.lidar.lidar_pattern` (the tests hold them against each other): the runtime must
+not import :mod:`diana_lab.sensing`, which pulls in open3d and gymnasium at import time.
+
+Frames: rover x forward, y left, z up; the sensor frame is the sensor's BODY frame, also x forward (the
+optical axis of a camera), y left, z up -- not the optical frame (z forward, x right, y down) that ROS
+camera drivers publish; see :func:`optical_to_body`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from diana_lab.deploy.spec import SensorSpec
+
+__all__ = ["SensorModel", "leveling_matrix", "optical_to_body", "pitch_matrix", "rpy_matrix"]
+
+RANGE_SLACK = 1e-6  # relative: a return at exactly max_range must survive a float round trip
+
+
+def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
+    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``: rover frame -> world (same formula as the training code)."""
+    cr, sr = math.cos(roll), math.sin(roll)
+    cp, sp = math.cos(pitch), math.sin(pitch)
+    cy, sy = math.cos(yaw), math.sin(yaw)
+    return np.array(
+        [
+            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+            [-sp, cp * sr, cp * cr],
+        ]
+    )
+
+
+def pitch_matrix(pitch: float) -> np.ndarray:
+    """``Ry(pitch)``: the mount rotation of a sensor pitched down by ``pitch`` (sensor -> rover)."""
+    c, s = math.cos(pitch), math.sin(pitch)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def leveling_matrix(roll: float, pitch: float) -> np.ndarray:
+    """``Ry(pitch) @ Rx(roll)``: rover frame -> heading frame (the elevation map is built level)."""
+    return rpy_matrix(roll, pitch, 0.0)
+
+
+def optical_to_body(points: np.ndarray) -> np.ndarray:
+    """A camera-optical-frame cloud (z forward, x right, y down; ROS ``*_optical_frame``) in the body frame."""
+    p = np.asarray(points)
+    return np.stack([p[:, 2], -p[:, 0], -p[:, 1]], axis=1)
+
+
+class SensorModel:
+    """Where a sensor-frame point falls in the trained sensor's range image, and the sensor -> rover transform.
+
+    ``locate`` keeps the points a simulated sensor could have returned (range in ``[min_range, max_range]``,
+    inside the field of view) so that a real sensor with a wider view or longer range shows the policy
+    what the trained one showed it.
+    """
+
+    def __init__(self, spec: SensorSpec) -> None:
+        self.spec = spec
+        self.rows, self.cols = spec.image_shape
+        self.mount = np.asarray(spec.mount_xyz, dtype=np.float64)
+        self.mount_rotation = pitch_matrix(spec.mount_pitch)
+        self._r2_min = spec.min_range**2 * (1.0 - RANGE_SLACK)
+        self._r2_max = spec.max_range**2 * (1.0 + RANGE_SLACK)
+        if spec.type == "depth_camera":
+            self._inv_tan_h = 1.0 / math.tan(math.radians(spec.hfov_deg) / 2.0)  # type: ignore[arg-type]
+            self._inv_tan_v = 1.0 / math.tan(math.radians(spec.vfov_deg) / 2.0)  # type: ignore[arg-type]
+        else:
+            top, bottom = math.radians(spec.vfov_max_deg), math.radians(spec.vfov_min_deg)  # type: ignore[arg-type]
+            self._el_top = top if self.rows > 1 else (top + bottom) / 2.0
+            # a beam covers half the spacing to its neighbours; a single beam +-half the configured span (min 1 deg)
+            self._el_step = (top - bottom) / (self.rows - 1) if self.rows > 1 else 0.0
+            self._el_half = self._el_step / 2.0 if self.rows > 1 else max((top - bottom) / 2.0, math.radians(1.0))
+            self._az_step = 2.0 * math.pi / self.cols
+
+    def to_rover(self, points: np.ndarray) -> np.ndarray:
+        """Sensor-frame points ``(N, 3)`` in the rover frame (float64): ``R_mount @ p + mount``."""
+        return points @ self.mount_rotation.T + self.mount
+
+    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(index, pixel)``: the indices of the points the trained sensor could see and their flat pixel
+        index ``row * cols + col`` in its range image."""
+        x, y, z = points[:, 0], points[:, 1], points[:, 2]
+        r2 = x * x + y * y + z * z
+        ok = (r2 >= self._r2_min) & (r2 <= self._r2_max)
+        if self.spec.type == "depth_camera":
+            ok &= x > 0
+            idx = np.flatnonzero(ok)
+            xs = x[idx]
+            col = np.floor((-y[idx] / xs * self._inv_tan_h + 1.0) * (0.5 * self.cols))
+            row = np.floor((-z[idx] / xs * self._inv_tan_v + 1.0) * (0.5 * self.rows))
+        else:
+            idx = np.flatnonzero(ok)
+            xs, ys, zs = x[idx], y[idx], z[idx]
+            azimuth = np.arctan2(ys, xs)
+            col = np.floor((math.pi - azimuth) / self._az_step) % self.cols
+            drop = self._el_top - np.arctan2(zs, np.hypot(xs, ys))  # angle below the top beam
+            row = np.round(drop / self._el_step) if self.rows > 1 else np.zeros_like(drop)
+            off_beam = np.abs(drop - row * self._el_step) > self._el_half
+            row = np.where(off_beam, -1.0, row)
+        inside = (row >= 0) & (row < self.rows) & (col >= 0) & (col < self.cols)
+        keep = np.flatnonzero(inside)
+        pixel = row.take(keep).astype(np.int64) * self.cols + col.take(keep).astype(np.int64)
+        return idx.take(keep), pixel
+
+    def ranges(self, points: np.ndarray) -> np.ndarray:
+        """Distance of each point from the sensor (what a lidar range image holds)."""
+        return np.sqrt(np.einsum("ij,ij->i", points, points))

@@ -1,0 +1,118 @@
+"""The onboard policy: pose estimate + goal + raw point cloud -> the next world-frame waypoint.
+
+Needs numpy and onnxruntime only (open3d for the ``elevation_map``/``points`` encodings). The ONNX graph
+holds the network, the observation normalisation, the action clipping and the action -> waypoint-offset
+mapping (square or Shirley-Chiu disc, ``min_distance``); the offset comes out in the action frame, and
+:meth:`Navigator.waypoint` turns it by the pose's yaw (``action_space.frame=rover``) and adds the position
+here in float64, so the graph needs no pose input beyond the observation.
+
+The waypoint is NOT clamped to a map: the simulator keeps waypoints inside its world, a rover has no such
+edge (clamp it in the position controller if your site has one).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import onnxruntime as ort
+
+from diana_lab.deploy.encoding import CloudEncoder, make_cloud_encoder
+from diana_lab.deploy.inputs import Pose, check_cloud, check_goal, goal_vector
+from diana_lab.deploy.spec import PolicySpec, sidecar_path
+
+__all__ = ["Navigator", "session_options"]
+
+PoseLike = Pose | Any
+
+
+def session_options(threads: int = 1) -> ort.SessionOptions:
+    """One inference thread by default: the onboard computer runs localisation and control beside it, and
+    a policy this small gains nothing from more (thread hand-offs cost more than its convolutions)."""
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = threads
+    opts.inter_op_num_threads = 1
+    opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+    opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+    opts.log_severity_level = 3  # errors only: no per-session warnings on the rover's console
+    return opts
+
+
+class Navigator:
+    """An exported policy with its sidecar. Build with :meth:`from_files`; call :meth:`next_waypoint`."""
+
+    def __init__(self, spec: PolicySpec, model_path: str | Path, threads: int = 1,
+                 providers: list[str] | None = None) -> None:
+        self.spec = spec
+        self.model_path = Path(model_path)
+        self.threads = int(threads)
+        self.session = ort.InferenceSession(str(self.model_path), session_options(self.threads),
+                                            providers=providers or ["CPUExecutionProvider"])
+        self.sensor_key = spec.encoding.name
+        self._check_graph()
+        self.encoder: CloudEncoder = make_cloud_encoder(spec.sensor, spec.encoding)
+        self._low = np.asarray(spec.goal_low, dtype=np.float32)
+        self._high = np.asarray(spec.goal_high, dtype=np.float32)
+        self._rotate = spec.action_space.frame == "rover"
+
+    @classmethod
+    def from_files(cls, onnx_path: str | Path, sidecar: str | Path | None = None, threads: int = 1,
+                   providers: list[str] | None = None) -> Navigator:
+        """Load ``policy.onnx`` and its sidecar (``policy.json`` next to it unless ``sidecar`` is given)."""
+        onnx_path = Path(onnx_path)
+        if not onnx_path.is_file():
+            raise FileNotFoundError(f"onnx_path: no such file '{onnx_path}'")
+        spec = PolicySpec.load(sidecar if sidecar is not None else sidecar_path(onnx_path))
+        return cls(spec, onnx_path, threads, providers)
+
+    def _check_graph(self) -> None:
+        got = {i.name: list(i.shape) for i in self.session.get_inputs()}
+        for name, shape in self.spec.inputs.items():
+            if name not in got or [d if isinstance(d, int) else -1 for d in got[name]] != list(shape):
+                raise ValueError(f"model '{self.model_path}': input '{name}' {shape} from the sidecar does not "
+                                 f"match the graph's inputs {got}; were they exported together?")
+        outputs = [o.name for o in self.session.get_outputs()]
+        if "offset" not in outputs:
+            raise ValueError(f"model '{self.model_path}': no 'offset' output (outputs: {outputs})")
+
+    # ------------------------------------------------------------------ steps (public for tests and tools)
+    def observation(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> dict[str, np.ndarray]:
+        """The policy's observation (unbatched), built as the env builds it."""
+        p = Pose.of(pose)
+        g = check_goal(goal)
+        pts = check_cloud(cloud, drop_invalid)
+        return {
+            "goal": goal_vector(p, g, self.spec.distance_scale, self._low, self._high),
+            self.sensor_key: self.encoder(pts, p.roll, p.pitch),
+        }
+
+    def offset(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """The waypoint offset in the action frame (float64, (2,)) for one unbatched observation."""
+        feeds = {k: np.ascontiguousarray(obs[k], dtype=np.float32)[None] for k in self.spec.inputs}
+        (out,) = self.session.run(["offset"], feeds)
+        return out[0].astype(np.float64)
+
+    def waypoint(self, pose: PoseLike, offset: np.ndarray) -> np.ndarray:
+        """World waypoint = position + offset (turned by the yaw when the action frame is the rover's)."""
+        p = Pose.of(pose)
+        local = np.asarray(offset, dtype=np.float64)
+        if self._rotate:
+            c, s = math.cos(p.yaw), math.sin(p.yaw)
+            local = np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
+        return p.xy + local
+
+    # ------------------------------------------------------------------ the call a rover makes
+    def next_waypoint(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> np.ndarray:
+        """The next waypoint ``(x, y)`` in the world frame.
+
+        Args:
+            pose: the pose estimate, a :class:`Pose` or ``(x, y, z, roll, pitch, yaw)`` (world frame, rad).
+            goal: ``(x, y)`` in the world frame.
+            cloud: ``(N, 3)`` raw points in the sensor's body frame (x forward, y left, z up; convert a ROS
+                optical-frame cloud with :func:`diana_lab.deploy.optical_to_body`).
+            drop_invalid: ignore NaN/inf points instead of raising.
+        """
+        p = Pose.of(pose)
+        return self.waypoint(p, self.offset(self.observation(p, goal, cloud, drop_invalid)))
