@@ -9,6 +9,13 @@ import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+from hypothesis import settings  # noqa: E402
+
+# CI runs the same examples every time (reproducible); locally hypothesis explores new ones
+settings.register_profile("ci", derandomize=True, database=None)
+if os.environ.get("CI"):
+    settings.load_profile("ci")
+
 from diana_lab.config import build, compose, to_object
 
 
