@@ -44,7 +44,7 @@ from diana_lab.config.env import ActionSpaceConfig, EpisodeConfig
 from diana_lab.config.sensing import DepthCameraConfig, Lidar3dConfig, SensorConfig
 from diana_lab.deploy.spec import ActionSpec, EncodingSpec, PolicySpec, SensorSpec, sidecar_path
 
-__all__ = ["ExportablePolicy", "export_policy", "expected_shape", "policy_spec"]
+__all__ = ["ExportablePolicy", "expected_shape", "export_policy", "policy_spec"]
 
 DEFAULT_OPSET = 17  # what onnxruntime >= 1.14 and TensorRT 8.6 (JetPack 5/6) both run
 VERIFY_TOLERANCE = 1e-4  # metres: ONNX vs torch on random observations, checked at every export
@@ -78,8 +78,11 @@ def _replace_adaptive_pools(module: nn.Module, example: dict[str, torch.Tensor],
     hooks = []
     for name, sub in module.named_modules():
         if isinstance(sub, nn.AdaptiveAvgPool2d):
-            hooks.append(sub.register_forward_pre_hook(
-                lambda _m, args, name=name: sizes.__setitem__(name, tuple(args[0].shape[-2:]))))
+            hooks.append(
+                sub.register_forward_pre_hook(
+                    lambda _m, args, name=name: sizes.__setitem__(name, tuple(args[0].shape[-2:]))
+                )
+            )
     with torch.no_grad():
         run(example)
     for h in hooks:
@@ -110,8 +113,14 @@ def square_to_disc(a: torch.Tensor) -> torch.Tensor:
 class ExportablePolicy(nn.Module):
     """``(goal, encoding) -> (offset, action)``: normalisation, deterministic actor, clipping, mapping."""
 
-    def __init__(self, policy: nn.Module, sensor_key: str, normalization: dict[str, tuple[np.ndarray, np.ndarray]],
-                 clip_obs: float, action: ActionSpec) -> None:
+    def __init__(
+        self,
+        policy: nn.Module,
+        sensor_key: str,
+        normalization: dict[str, tuple[np.ndarray, np.ndarray]],
+        clip_obs: float,
+        action: ActionSpec,
+    ) -> None:
         super().__init__()
         self.policy = policy
         self.sensor_key = sensor_key
@@ -175,14 +184,30 @@ def expected_shape(sensor: SensorConfig) -> tuple[int, ...]:
 
 
 def sensor_spec(sensor: SensorConfig) -> SensorSpec:
-    common = {"mount_xyz": tuple(float(v) for v in sensor.mount_xyz), "mount_pitch_deg": float(sensor.mount_pitch_deg),
-              "min_range": float(sensor.min_range), "max_range": float(sensor.max_range)}
+    common = {
+        "mount_xyz": tuple(float(v) for v in sensor.mount_xyz),
+        "mount_pitch_deg": float(sensor.mount_pitch_deg),
+        "min_range": float(sensor.min_range),
+        "max_range": float(sensor.max_range),
+    }
     if isinstance(sensor, DepthCameraConfig):
-        return SensorSpec(type="depth_camera", width=sensor.width, height=sensor.height,
-                          hfov_deg=float(sensor.hfov_deg), vfov_deg=float(sensor.vfov_deg), **common)
+        return SensorSpec(
+            type="depth_camera",
+            width=sensor.width,
+            height=sensor.height,
+            hfov_deg=float(sensor.hfov_deg),
+            vfov_deg=float(sensor.vfov_deg),
+            **common,
+        )
     if isinstance(sensor, Lidar3dConfig):
-        return SensorSpec(type="lidar3d", beams=sensor.beams, vfov_min_deg=float(sensor.vfov_min_deg),
-                          vfov_max_deg=float(sensor.vfov_max_deg), columns=sensor.columns, **common)
+        return SensorSpec(
+            type="lidar3d",
+            beams=sensor.beams,
+            vfov_min_deg=float(sensor.vfov_min_deg),
+            vfov_max_deg=float(sensor.vfov_max_deg),
+            columns=sensor.columns,
+            **common,
+        )
     raise ConfigError(f"sensor: cannot export a policy for sensor type {type(sensor).__name__}")
 
 
@@ -201,12 +226,16 @@ def encoding_spec(sensor: SensorConfig) -> EncodingSpec:
 
 
 def action_spec(action: ActionSpaceConfig) -> ActionSpec:
-    return ActionSpec(shape=action.shape, size=float(action.size), radius=float(action.radius), frame=action.frame,
-                      min_distance=float(action.min_distance))
+    return ActionSpec(
+        shape=action.shape,
+        size=float(action.size),
+        radius=float(action.radius),
+        frame=action.frame,
+        min_distance=float(action.min_distance),
+    )
 
 
-def _normalization(vecnormalize: Any, keys: tuple[str, ...]) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]],
-                                                                       float]:
+def _normalization(vecnormalize: Any, keys: tuple[str, ...]) -> tuple[dict[str, tuple[np.ndarray, np.ndarray]], float]:
     """``{key: (mean, std)}`` of the observation keys VecNormalize normalised, and its ``clip_obs``."""
     if vecnormalize is None or not getattr(vecnormalize, "norm_obs", False):
         return {}, math.inf
@@ -215,23 +244,38 @@ def _normalization(vecnormalize: Any, keys: tuple[str, ...]) -> tuple[dict[str, 
     out = {}
     for key in norm_keys:
         stats = rms[key] if isinstance(rms, dict) else rms
-        out[key] = (np.asarray(stats.mean, dtype=np.float64),
-                    np.sqrt(np.asarray(stats.var, dtype=np.float64) + vecnormalize.epsilon))
+        out[key] = (
+            np.asarray(stats.mean, dtype=np.float64),
+            np.sqrt(np.asarray(stats.var, dtype=np.float64) + vecnormalize.epsilon),
+        )
     return out, float(vecnormalize.clip_obs)
 
 
-def policy_spec(model: Any, sensor: SensorConfig, action: ActionSpaceConfig, episode: EpisodeConfig,
-                normalization: dict[str, Any], source: dict[str, Any], opset: int) -> PolicySpec:
+def policy_spec(
+    model: Any,
+    sensor: SensorConfig,
+    action: ActionSpaceConfig,
+    episode: EpisodeConfig,
+    normalization: dict[str, Any],
+    source: dict[str, Any],
+    opset: int,
+) -> PolicySpec:
     """The sidecar of a model trained with these ``sensor``, ``action_space`` and ``episode`` groups."""
     enc = encoding_spec(sensor)
     goal_space = model.observation_space["goal"]
     return PolicySpec(
-        sensor=sensor_spec(sensor), encoding=enc, action_space=action_spec(action),
+        sensor=sensor_spec(sensor),
+        encoding=enc,
+        action_space=action_spec(action),
         distance_scale=float(episode.distance_scale),
         goal_low=tuple(float(v) for v in np.asarray(goal_space.low, dtype=np.float32)),
         goal_high=tuple(float(v) for v in np.asarray(goal_space.high, dtype=np.float32)),
-        inputs={"goal": [-1, 7], enc.name: [-1, *enc.shape]}, outputs={"offset": [-1, 2], "action": [-1, 2]},
-        normalization=normalization, source=source, diana_lab_version=diana_lab.__version__, opset=opset,
+        inputs={"goal": [-1, 7], enc.name: [-1, *enc.shape]},
+        outputs={"offset": [-1, 2], "action": [-1, 2]},
+        normalization=normalization,
+        source=source,
+        diana_lab_version=diana_lab.__version__,
+        opset=opset,
     )
 
 
@@ -242,8 +286,10 @@ def _check_model(model: Any, sensor: SensorConfig, label: str) -> str:
     if policy is None or not hasattr(policy, "_predict"):
         raise ConfigError(f"policy {label}: {type(model).__name__} has no SB3 policy to export")
     if "lstm" in type(policy).__name__.lower() or hasattr(policy, "lstm_actor"):
-        raise ConfigError(f"policy {label}: recurrent policies need their hidden state carried between calls; "
-                          "exporting them is not supported")
+        raise ConfigError(
+            f"policy {label}: recurrent policies need their hidden state carried between calls; "
+            "exporting them is not supported"
+        )
     space = model.observation_space
     keys = sorted(getattr(space, "spaces", {}))
     if "goal" not in keys or len(keys) != 2:
@@ -252,8 +298,10 @@ def _check_model(model: Any, sensor: SensorConfig, label: str) -> str:
     want = expected_shape(sensor)
     got = tuple(space[key].shape)
     if key != sensor.encoding or got != want:
-        raise ConfigError(f"policy {label}: observes '{key}' {got}, but the sensor config gives "
-                          f"'{sensor.encoding}' {want}; export with the sensor settings it was trained with")
+        raise ConfigError(
+            f"policy {label}: observes '{key}' {got}, but the sensor config gives "
+            f"'{sensor.encoding}' {want}; export with the sensor settings it was trained with"
+        )
     if tuple(model.action_space.shape) != (2,):
         raise ConfigError(f"policy {label}: expected a (2,) action, got {model.action_space.shape}")
     return key
@@ -283,9 +331,16 @@ def _samples(model: Any, key: str, n: int, seed: int = 0) -> tuple[np.ndarray, n
     return draw(space["goal"]), draw(space[key])
 
 
-def export_policy(model: Any, vecnormalize: Any, sensor: SensorConfig, action: ActionSpaceConfig,
-                  episode: EpisodeConfig, output: str | Path, opset: int = DEFAULT_OPSET,
-                  source: dict[str, Any] | None = None) -> PolicySpec:
+def export_policy(
+    model: Any,
+    vecnormalize: Any,
+    sensor: SensorConfig,
+    action: ActionSpaceConfig,
+    episode: EpisodeConfig,
+    output: str | Path,
+    opset: int = DEFAULT_OPSET,
+    source: dict[str, Any] | None = None,
+) -> PolicySpec:
     """Write ``output`` (ONNX) and its sidecar; check the graph against torch on random observations."""
     import onnx
     import onnxruntime as ort
@@ -300,14 +355,20 @@ def export_policy(model: Any, vecnormalize: Any, sensor: SensorConfig, action: A
     graph = ExportablePolicy(copy.deepcopy(policy), key, norm, clip_obs, act).eval()
     goal0, enc0 = _samples(model, key, 1)
     with _quiet_export():
-        _replace_adaptive_pools(graph.policy, {"goal": torch.from_numpy(goal0), key: torch.from_numpy(enc0)},
-                                graph.actor)
+        _replace_adaptive_pools(
+            graph.policy, {"goal": torch.from_numpy(goal0), key: torch.from_numpy(enc0)}, graph.actor
+        )
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     with _quiet_export(), torch.no_grad():
         torch.onnx.export(
-            graph, (torch.from_numpy(goal0), torch.from_numpy(enc0)), str(output), input_names=["goal", key],
-            output_names=["offset", "action"], opset_version=opset, dynamo=False,
+            graph,
+            (torch.from_numpy(goal0), torch.from_numpy(enc0)),
+            str(output),
+            input_names=["goal", key],
+            output_names=["offset", "action"],
+            opset_version=opset,
+            dynamo=False,
             dynamic_axes={n: {0: "batch"} for n in ("goal", key, "offset", "action")},
         )
     onnx.checker.check_model(str(output))
@@ -318,11 +379,19 @@ def export_policy(model: Any, vecnormalize: Any, sensor: SensorConfig, action: A
     got = session.run(["offset"], {"goal": goal, key: enc})[0]
     err = float(np.max(np.abs(got - want)))
     if not err <= VERIFY_TOLERANCE:
-        raise RuntimeError(f"export: the ONNX graph differs from the torch policy by {err:.2e} m on random "
-                           f"observations (tolerance {VERIFY_TOLERANCE}); '{output}' is not usable")
+        output.unlink(missing_ok=True)  # never leave a graph on disk that would drive differently
+        raise RuntimeError(
+            f"export: the ONNX graph differs from the torch policy by {err:.2e} m on random "
+            f"observations (tolerance {VERIFY_TOLERANCE}); nothing was written"
+        )
     normalization = {"baked_into_graph": True, "keys": sorted(norm), "clip_obs": clip_obs if norm else None}
-    src = {**(source or {}), "algorithm": type(model).__name__, "torch": torch.__version__,
-           "exported_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"), "export_check_max_error_m": err}
+    src = {
+        **(source or {}),
+        "algorithm": type(model).__name__,
+        "torch": torch.__version__,
+        "exported_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "export_check_max_error_m": err,
+    }
     spec = policy_spec(model, sensor, action, episode, normalization, src, opset)
     spec.save(sidecar_path(output))
     return spec
@@ -337,26 +406,44 @@ def run(cfg: Any) -> PolicySpec:
     from diana_lab.evaluation.loading import load_policy
 
     if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
-        raise UserError("policy: expected policy=<MLflow run id | model .zip or run folder | pretrained>, e.g. "
-                        "python -m diana_lab.export policy=outputs/run/model output=policy.onnx")
+        raise UserError(
+            "policy: expected policy=<MLflow run id | model .zip or run folder | pretrained>, e.g. "
+            "python -m diana_lab.export policy=outputs/run/model output=policy.onnx"
+        )
     loaded = load_policy(str(cfg.policy), cfg, to_object("eval", cfg.eval))
     if loaded.model is None:
         raise UserError(f"policy={cfg.policy}: a classical baseline, not a trained policy; nothing to export")
     train_cfg = loaded.train_cfg
     if train_cfg is None:
-        print(f"warning: no training config found with {loaded.label}; the sidecar takes sensor, action_space "
-              "and episode from this command's config -- make sure they match the training run")
+        print(
+            f"warning: no training config found with {loaded.label}; the sidecar takes sensor, action_space "
+            "and episode from this command's config -- make sure they match the training run"
+        )
 
     def group(name: str) -> Any:
         node = train_cfg[name] if train_cfg is not None and name in train_cfg else cfg[name]
         return to_object(name, node)
 
-    source = {"policy": str(cfg.policy), "label": loaded.label, "run_id": loaded.run_id,
-              "config": "training" if train_cfg is not None else "command line"}
-    spec = export_policy(loaded.model, loaded.policy.vecnormalize, group("sensor"), group("action_space"),
-                         group("episode"), Path(str(cfg.output)).expanduser(), int(cfg.opset), source)
+    source = {
+        "policy": str(cfg.policy),
+        "label": loaded.label,
+        "run_id": loaded.run_id,
+        "config": "training" if train_cfg is not None else "command line",
+    }
+    spec = export_policy(
+        loaded.model,
+        loaded.policy.vecnormalize,
+        group("sensor"),
+        group("action_space"),
+        group("episode"),
+        Path(str(cfg.output)).expanduser(),
+        int(cfg.opset),
+        source,
+    )
     out = Path(str(cfg.output)).expanduser()
-    print(f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "
-          f"{spec.encoding.shape} from a {spec.sensor.type}, {spec.action_space.shape} action space "
-          f"({spec.action_space.frame} frame); load with diana_lab.deploy.Navigator.from_files('{out}')")
+    print(
+        f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "
+        f"{spec.encoding.shape} from a {spec.sensor.type}, {spec.action_space.shape} action space "
+        f"({spec.action_space.frame} frame); load with diana_lab.deploy.Navigator.from_files('{out}')"
+    )
     return spec

@@ -78,16 +78,17 @@ def check_cloud(cloud: Any, drop_invalid: bool = False) -> np.ndarray:
     finite = np.isfinite(pts).all(axis=1)
     if not finite.all():
         if not drop_invalid:
-            raise ValueError(f"cloud: {int((~finite).sum())} of {len(pts)} points are NaN or infinite; pass "
-                             "drop_invalid=True to ignore them")
+            raise ValueError(
+                f"cloud: {int((~finite).sum())} of {len(pts)} points are NaN or infinite; pass "
+                "drop_invalid=True to ignore them"
+            )
         pts = pts[finite]
     if len(pts) == 0:
         raise ValueError("cloud: no points (an empty cloud is treated as a sensor failure, not as free space)")
     return pts
 
 
-def goal_vector(pose: Pose, goal: np.ndarray, distance_scale: float, low: np.ndarray,
-                high: np.ndarray) -> np.ndarray:
+def goal_vector(pose: Pose, goal: np.ndarray, distance_scale: float, low: np.ndarray, high: np.ndarray) -> np.ndarray:
     """The env's ``goal`` observation (:meth:`RoverNavEnv._goal_vector`): float64 maths, clipped, float32.
 
     ``[distance / distance_scale, sin(heading error), cos(heading error), roll / (pi/2), pitch / (pi/2),
@@ -96,6 +97,15 @@ def goal_vector(pose: Pose, goal: np.ndarray, distance_scale: float, low: np.nda
     dx, dy = goal[0] - pose.x, goal[1] - pose.y
     distance = math.hypot(dx, dy)
     error = (math.atan2(dy, dx) - pose.yaw + math.pi) % (2.0 * math.pi) - math.pi
-    g = np.array([distance / distance_scale, math.sin(error), math.cos(error), pose.roll / (math.pi / 2),
-                  pose.pitch / (math.pi / 2), math.sin(pose.yaw), math.cos(pose.yaw)])
+    g = np.array(
+        [
+            distance / distance_scale,
+            math.sin(error),
+            math.cos(error),
+            pose.roll / (math.pi / 2),
+            pose.pitch / (math.pi / 2),
+            math.sin(pose.yaw),
+            math.cos(pose.yaw),
+        ]
+    )
     return np.clip(g, low, high).astype(np.float32)

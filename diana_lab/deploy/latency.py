@@ -52,8 +52,9 @@ def synthetic_cloud(sensor: SensorSpec, ground_z: float = -0.1) -> np.ndarray:
     return d_sensor[hit] * t[hit, None]
 
 
-def measure_latency(navigator: Navigator, n: int = 1000, warmup: int = 50, pose: Any = None,
-                    goal: Any = None, cloud: Any = None) -> dict[str, float]:
+def measure_latency(
+    navigator: Navigator, n: int = 1000, warmup: int = 50, pose: Any = None, goal: Any = None, cloud: Any = None
+) -> dict[str, float]:
     """Time ``n`` calls of :meth:`Navigator.next_waypoint` (after ``warmup`` untimed ones), in milliseconds.
 
     Runs on one onnxruntime thread: a navigator built with more is re-opened with one. Returns ``p50``,

@@ -43,13 +43,15 @@ def session_options(threads: int = 1) -> ort.SessionOptions:
 class Navigator:
     """An exported policy with its sidecar. Build with :meth:`from_files`; call :meth:`next_waypoint`."""
 
-    def __init__(self, spec: PolicySpec, model_path: str | Path, threads: int = 1,
-                 providers: list[str] | None = None) -> None:
+    def __init__(
+        self, spec: PolicySpec, model_path: str | Path, threads: int = 1, providers: list[str] | None = None
+    ) -> None:
         self.spec = spec
         self.model_path = Path(model_path)
         self.threads = int(threads)
-        self.session = ort.InferenceSession(str(self.model_path), session_options(self.threads),
-                                            providers=providers or ["CPUExecutionProvider"])
+        self.session = ort.InferenceSession(
+            str(self.model_path), session_options(self.threads), providers=providers or ["CPUExecutionProvider"]
+        )
         self.sensor_key = spec.encoding.name
         self._check_graph()
         self.encoder: CloudEncoder = make_cloud_encoder(spec.sensor, spec.encoding)
@@ -58,8 +60,13 @@ class Navigator:
         self._rotate = spec.action_space.frame == "rover"
 
     @classmethod
-    def from_files(cls, onnx_path: str | Path, sidecar: str | Path | None = None, threads: int = 1,
-                   providers: list[str] | None = None) -> Navigator:
+    def from_files(
+        cls,
+        onnx_path: str | Path,
+        sidecar: str | Path | None = None,
+        threads: int = 1,
+        providers: list[str] | None = None,
+    ) -> Navigator:
         """Load ``policy.onnx`` and its sidecar (``policy.json`` next to it unless ``sidecar`` is given)."""
         onnx_path = Path(onnx_path)
         if not onnx_path.is_file():
@@ -71,8 +78,10 @@ class Navigator:
         got = {i.name: list(i.shape) for i in self.session.get_inputs()}
         for name, shape in self.spec.inputs.items():
             if name not in got or [d if isinstance(d, int) else -1 for d in got[name]] != list(shape):
-                raise ValueError(f"model '{self.model_path}': input '{name}' {shape} from the sidecar does not "
-                                 f"match the graph's inputs {got}; were they exported together?")
+                raise ValueError(
+                    f"model '{self.model_path}': input '{name}' {shape} from the sidecar does not "
+                    f"match the graph's inputs {got}; were they exported together?"
+                )
         outputs = [o.name for o in self.session.get_outputs()]
         if "offset" not in outputs:
             raise ValueError(f"model '{self.model_path}': no 'offset' output (outputs: {outputs})")

@@ -63,8 +63,11 @@ class SensorSpec:
     def __post_init__(self) -> None:
         if self.type not in SENSOR_TYPES:
             raise ValueError(f"sensor.type: expected one of {SENSOR_TYPES}, got {self.type!r}")
-        needed = ("width", "height", "hfov_deg", "vfov_deg") if self.type == "depth_camera" else (
-            "beams", "vfov_min_deg", "vfov_max_deg", "columns")
+        needed = (
+            ("width", "height", "hfov_deg", "vfov_deg")
+            if self.type == "depth_camera"
+            else ("beams", "vfov_min_deg", "vfov_max_deg", "columns")
+        )
         missing = [k for k in needed if getattr(self, k) is None]
         if missing:
             raise ValueError(f"sensor: a {self.type} needs {', '.join(missing)}")
@@ -117,8 +120,9 @@ class ActionSpec:
 
     def __post_init__(self) -> None:
         if self.shape not in ("square", "circle") or self.frame not in ("rover", "world"):
-            raise ValueError(f"action_space: expected shape square|circle and frame rover|world, got "
-                             f"{self.shape!r}, {self.frame!r}")
+            raise ValueError(
+                f"action_space: expected shape square|circle and frame rover|world, got {self.shape!r}, {self.frame!r}"
+            )
 
     @property
     def extent(self) -> float:
@@ -154,7 +158,9 @@ class PolicySpec:
             raise ValueError(f"inputs: expected 'goal' and '{self.encoding.name}', got {sorted(self.inputs)}")
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), indent=2, sort_keys=False) + "\n"
+        node = asdict(self)
+        node["sensor"] = {k: v for k, v in node["sensor"].items() if v is not None}  # the other type's fields
+        return json.dumps(node, indent=1) + "\n"
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -175,8 +181,12 @@ class PolicySpec:
             for key in ("goal_low", "goal_high", "goal_keys"):
                 if key in rest:
                     rest[key] = tuple(rest[key])
-            return cls(sensor=SensorSpec(**sensor), encoding=EncodingSpec(**enc),
-                       action_space=ActionSpec(**_need(node, "action_space", where)), **rest)
+            return cls(
+                sensor=SensorSpec(**sensor),
+                encoding=EncodingSpec(**enc),
+                action_space=ActionSpec(**_need(node, "action_space", where)),
+                **rest,
+            )
         except TypeError as exc:  # an unknown or missing dataclass field
             raise ValueError(f"{where}: {exc}") from exc
 

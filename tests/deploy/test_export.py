@@ -1,0 +1,93 @@
+"""``python -m diana_lab.export``: the graph's parts, the sidecar, and the mistakes it refuses."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+from torch import nn
+
+from diana_lab.cli import UserError
+from diana_lab.config import ConfigError, compose, to_object
+from diana_lab.deploy import PolicySpec, sidecar_path
+from diana_lab.deploy.export import MatmulAdaptiveAvgPool2d, export_policy, square_to_disc
+from diana_lab.envs.action_spaces import WaypointMapping
+from diana_lab.envs.action_spaces import square_to_disc as square_to_disc_np
+from diana_lab.export import main
+
+
+@pytest.mark.parametrize(("in_hw", "out_hw"), [((14, 14), (3, 4)), ((6, 8), (3, 4)), ((5, 7), (5, 2))])
+def test_matmul_pool_equals_adaptive_average_pool(in_hw, out_hw):
+    x = torch.randn(2, 3, *in_hw)
+    want = nn.AdaptiveAvgPool2d(out_hw)(x)
+    torch.testing.assert_close(MatmulAdaptiveAvgPool2d(in_hw, out_hw)(x), want, rtol=1e-5, atol=1e-6)
+
+
+def test_torch_disc_mapping_equals_the_envs():
+    g = np.linspace(-1, 1, 41)
+    a = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)  # includes 0, the axes and both diagonals
+    got = square_to_disc(torch.as_tensor(a, dtype=torch.float64)).numpy()
+    np.testing.assert_allclose(got, square_to_disc_np(a), atol=1e-12)
+
+
+def test_sidecar_describes_what_the_runtime_needs(depth_run):
+    node = json.loads(sidecar_path(depth_run.onnx).read_text())
+    cfg = compose(["world=craters"])
+    assert (
+        node["sensor"].items()
+        >= {
+            "type": "depth_camera",
+            "width": cfg.sensor.width,
+            "height": cfg.sensor.height,
+            "hfov_deg": cfg.sensor.hfov_deg,
+            "mount_xyz": list(cfg.sensor.mount_xyz),
+            "mount_pitch_deg": cfg.sensor.mount_pitch_deg,
+            "min_range": cfg.sensor.min_range,
+            "max_range": cfg.sensor.max_range,
+        }.items()
+    )
+    assert node["encoding"] == {"name": "depth_image", "shape": [1, 48, 64], "params": {"no_return": 1.0}}
+    assert node["action_space"]["shape"] == "square" and node["action_space"]["frame"] == "rover"
+    assert node["distance_scale"] == cfg.episode.distance_scale
+    assert node["inputs"] == {"goal": [-1, 7], "depth_image": [-1, 1, 48, 64]}
+    assert node["normalization"] == {"baked_into_graph": True, "keys": ["goal"], "clip_obs": 2.0}
+    assert node["source"]["config"] == "training" and node["source"]["algorithm"] == "PPO"
+    assert node["diana_lab_version"] and node["source"]["export_check_max_error_m"] < 1e-4
+    spec = PolicySpec.load(sidecar_path(depth_run.onnx))
+    assert PolicySpec.from_dict(json.loads(spec.to_json())) == spec  # the JSON round trip is lossless
+
+
+def test_the_graph_takes_any_batch_and_maps_actions_like_the_env(depth_run):
+    session = ort.InferenceSession(str(depth_run.onnx), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(0)
+    goal = rng.uniform(-1, 1, (5, 7)).astype(np.float32)
+    image = rng.uniform(0, 1, (5, 1, 48, 64)).astype(np.float32)
+    offset, action = session.run(["offset", "action"], {"goal": goal, "depth_image": image})
+    assert offset.shape == action.shape == (5, 2) and np.all(np.abs(action) <= 1)
+    single = session.run(["offset"], {"goal": goal[2:3], "depth_image": image[2:3]})[0]
+    np.testing.assert_allclose(single[0], offset[2], atol=1e-6)
+    mapping = WaypointMapping(to_object("action_space", compose([]).action_space))
+    np.testing.assert_allclose(offset, [mapping.offset(a, 0.0) for a in action], atol=1e-5)
+
+
+def test_export_refuses_baselines_missing_policies_and_other_sensors(depth_run, tmp_path):
+    with pytest.raises(UserError, match="classical baseline"):
+        main.task(compose(["policy=straight", f"output={tmp_path / 'p.onnx'}"], config_name="export"))
+    with pytest.raises(UserError, match="policy: expected"):
+        main.task(compose([f"output={tmp_path / 'p.onnx'}"], config_name="export"))
+    model = depth_run.loaded.model
+    sensor = to_object("sensor", compose(["sensor.width=32"]).sensor)
+    groups = compose([])
+    with pytest.raises(ConfigError, match=r"observes 'depth_image' \(1, 48, 64\).*\(1, 48, 32\)"):
+        export_policy(
+            model,
+            None,
+            sensor,
+            to_object("action_space", groups.action_space),
+            to_object("episode", groups.episode),
+            tmp_path / "p.onnx",
+        )
+    assert not (tmp_path / "p.onnx").exists()
