@@ -21,9 +21,9 @@ import sys
 # too, and SubprocVecEnv workers inherit it
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-from omegaconf import DictConfig  # noqa: E402
+from omegaconf import DictConfig
 
-from diana_lab.cli import hydra_app  # noqa: E402
+from diana_lab.cli import hydra_app
 
 
 @hydra_app(config_name="bench")

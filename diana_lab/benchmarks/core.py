@@ -222,20 +222,23 @@ class BenchContext:
 # ----------------------------------------------------------------------------------------------- registry
 
 
+MeasureFn = Callable[[BenchContext], list[Figure]]
+
+
 @dataclass(frozen=True)
 class Measurement:
     name: str
-    keys: tuple[str, ...]
-    fn: Callable[[BenchContext], list[Figure]]
+    keys: tuple[str, ...]  # the figure keys it produces
+    fn: MeasureFn
 
 
 MEASUREMENTS: dict[str, Measurement] = {}
 
 
-def measurement(*keys: str) -> Callable[[Callable[[BenchContext], list[Figure]]], Callable[[BenchContext], list[Figure]]]:
+def measurement(*keys: str) -> Callable[[MeasureFn], MeasureFn]:
     """Register ``fn(ctx) -> [Figure, ...]`` as the producer of ``keys`` (in the order of the table)."""
 
-    def decorator(fn: Callable[[BenchContext], list[Figure]]) -> Callable[[BenchContext], list[Figure]]:
+    def decorator(fn: MeasureFn) -> MeasureFn:
         MEASUREMENTS[fn.__name__] = Measurement(fn.__name__, keys, fn)
         return fn
 
@@ -254,6 +257,6 @@ def select(only: Iterable[str] | None) -> list[Measurement]:
     unknown = wanted - set(all_keys()) - set(MEASUREMENTS)
     if unknown:
         raise ValueError(
-            f"only: unknown figure(s) {sorted(unknown)}; expected some of {', '.join(all_keys())} (or profile)"
+            f"only: unknown figure(s) {sorted(unknown)}; expected some of {', '.join(sorted(all_keys()))} (or profile)"
         )
     return [m for m in MEASUREMENTS.values() if m.name in wanted or wanted & set(m.keys)]

@@ -50,8 +50,9 @@ class WaypointDriver:
         sim, failures = 0.0, 0
         for heading in self.rng.uniform(-math.pi, math.pi, waypoints):
             xy = self.dynamics.state.xy
-            waypoint = np.array([xy[0] + WAYPOINT_DISTANCE * math.cos(heading),
-                                 xy[1] + WAYPOINT_DISTANCE * math.sin(heading)])
+            waypoint = np.array(
+                [xy[0] + WAYPOINT_DISTANCE * math.cos(heading), xy[1] + WAYPOINT_DISTANCE * math.sin(heading)]
+            )
             self.controller.start()
             with timer:
                 result = self.dynamics.execute(waypoint, self.controller)
@@ -130,7 +131,7 @@ def _realtime_factor(ctx: BenchContext, key: str, robot: str | None, waypoints: 
 
 @measurement("physics_realtime_factor", "physics_realtime_factor_husky", "physics_realtime_factor_rocker_bogie")
 def physics_realtime(ctx: BenchContext) -> list[Figure]:
-    n = ctx.size(12, 3)  # ~10 simulated s each: ~0.05 s (Jackal) to ~0.15 s (Husky) of wall time
+    n = ctx.size(12, 2)  # ~10 simulated s each: ~0.05 s (Jackal) to ~0.15 s (Husky) of wall time
     return [
         _realtime_factor(ctx, "physics_realtime_factor", "jackal", n),
         _realtime_factor(ctx, "physics_realtime_factor_husky", "husky", n),

@@ -9,6 +9,7 @@ the per-process shared world, and resets at episode ends all included. Actions a
 from __future__ import annotations
 
 import gc
+import multiprocessing
 import time
 from typing import Any
 
@@ -20,6 +21,7 @@ from diana_lab.benchmarks.core import BenchContext, Figure, Target, figure_from_
 __all__ = ["env_steps_kinematic", "env_steps_physics", "rss_per_env", "vec_env_scaling"]
 
 DEPTH = ("sensor=depth_camera", "sensor.encoding=depth_image")
+FORKSERVER_PRELOAD = ("diana_lab.training.envs", "diana_lab.sensing", "diana_lab.sim.kinematic", "diana_lab.planning")
 DIANA_GYM_ANCHOR = {"name": "DIANA-Gym (Gazebo + ROS 2 at real time), at most", "value": 6.7}
 
 
@@ -84,9 +86,12 @@ def vec_env_scaling(ctx: BenchContext) -> list[Figure]:
     from diana_lab.config.run import TrainConfig
     from diana_lab.training.envs import make_training_env
 
+    # Workers start from a forkserver that has imported the env stack once (not measured, only quicker:
+    # without it each worker imports torch and SB3 afresh, ~3 s apiece on a loaded 2-core machine)
+    multiprocessing.set_forkserver_preload(list(FORKSERVER_PRELOAD))
     cfg = OmegaConf.create(_groups(ctx, "kinematic"))
     steps = ctx.size(1200, 200)  # env steps per repeat for each of the two set-ups
-    venvs = {n: make_training_env(cfg, TrainConfig(n_envs=n, vec_env="subproc"), ctx.seed) for n in (1, 2)}
+    venvs: dict[int, Any] = {}
     rng = np.random.default_rng(ctx.seed)
     rates: dict[int, list[float]] = {1: [], 2: []}
 
@@ -100,8 +105,9 @@ def vec_env_scaling(ctx: BenchContext) -> list[Figure]:
         return rates[2][-1] / rates[1][-1]
 
     try:
-        for venv in venvs.values():
-            venv.reset()
+        for n in (1, 2):
+            venvs[n] = make_training_env(cfg, TrainConfig(n_envs=n, vec_env="subproc"), ctx.seed)
+            venvs[n].reset()
         samples = repeat(sample, ctx.repeats)
     finally:
         for venv in venvs.values():
@@ -122,43 +128,53 @@ def vec_env_scaling(ctx: BenchContext) -> list[Figure]:
     ]
 
 
-@measurement("rss_mb_per_env")
-def rss_per_env(ctx: BenchContext) -> list[Figure]:
-    """Resident memory each additional env adds to one process (the world is shared, as in training)."""
+def _rss_samples(groups: dict[str, Any], seed: int, per: int, batches: int) -> tuple[list[float], float]:
+    """In a fresh process: one env, then ``batches`` batches of ``per`` more; MB of RSS per env per batch.
+
+    A fresh process, because in the benchmark's own process the envs would first fill the heap that
+    earlier measurements freed, and RSS would barely move (glibc keeps freed memory for reuse).
+    """
     import psutil
 
     from diana_lab.training.envs import make_env
 
-    groups = _groups(ctx, "kinematic")
     proc = psutil.Process()
-    per = ctx.size(3, 2)
     envs = [make_env(groups)]
-    envs[0].reset(seed=ctx.seed)
-
-    def sample() -> float:
+    envs[0].reset(seed=seed)
+    out = []
+    for _ in range(batches):
         gc.collect()
         before = proc.memory_info().rss
         for _ in range(per):
             env = make_env(groups)
-            env.reset(seed=ctx.seed + len(envs))
+            env.reset(seed=seed + len(envs))
             env.step(np.zeros(2, dtype=np.float32))  # touch the step path's buffers too
             envs.append(env)
         gc.collect()
-        return (proc.memory_info().rss - before) / per / 2**20
+        out.append((proc.memory_info().rss - before) / per / 2**20)
+    total = proc.memory_info().rss / 2**20
+    for env in envs:
+        env.close()
+    return out, total
 
-    try:
-        samples = repeat(sample, min(ctx.repeats, 5))
-        baseline = proc.memory_info().rss / 2**20
-    finally:
-        for env in envs:
-            env.close()
+
+@measurement("rss_mb_per_env")
+def rss_per_env(ctx: BenchContext) -> list[Figure]:
+    """Resident memory each additional env adds to one process (the world is shared, as in training)."""
+    from concurrent.futures import ProcessPoolExecutor
+
+    per = ctx.size(6, 3)
+    repeats = min(ctx.repeats, 5)
+    multiprocessing.set_forkserver_preload(list(FORKSERVER_PRELOAD))
+    with ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("forkserver")) as pool:
+        batches, total = pool.submit(_rss_samples, _groups(ctx, "kinematic"), ctx.seed, per, 1 + repeats).result()
     return [
         figure_from_samples(
             "rss_mb_per_env",
             "MB",
-            samples,
+            batches[1:],  # the first batch is the warm-up
             batch=f"{per} more envs",
-            note="RSS growth per additional kinematic env (depth 64x48) in one process, psutil",
-            extra={"rss_mb_total": baseline, "envs_in_process": len(envs)},
+            note="RSS growth per additional kinematic env (depth 64x48) in a fresh process, psutil",
+            extra={"rss_mb_process": total, "envs_in_process": 1 + per * (1 + repeats)},
         )
     ]

@@ -23,6 +23,7 @@ SENSOR_TARGET = Target("<=", 0.3)
 SPEEDUP_TARGET = Target(">=", 30.0)
 ELEVATION_TARGET = Target("<=", 1.0)
 SENSOR_112_TARGET = Target("<=", 2.0)
+PYBULLET_KEYS = {"heightfield": "sensor_ms_pybullet_raytest", "mesh": "sensor_ms_pybullet_raytest_mesh"}
 TINY_SIZE = 64  # the TinyRenderer anchor renders 64 x 64 pixels
 
 
@@ -115,7 +116,7 @@ def sensor_vs_pybullet(ctx: BenchContext) -> list[Figure]:
             for pos, rpy in batch:
                 sensor.observe(pos, rpy)
         out = {"sensor_ms": _ms_per(time.perf_counter() - t0, per * inner)}
-        for terrain, key in (("heightfield", "sensor_ms_pybullet_raytest"), ("mesh", "sensor_ms_pybullet_raytest_mesh")):
+        for terrain, key in PYBULLET_KEYS.items():
             t0 = time.perf_counter()
             ranges = [refs[terrain].cast(o, d, max_range) for o, d in rays]
             out[key] = _ms_per(time.perf_counter() - t0, per)

@@ -25,9 +25,19 @@ from diana_lab.benchmarks.report import SCHEMA_VERSION, figures_table, write_jso
 __all__ = ["ORDER", "PROFILE", "run"]
 
 PROFILE = "profile"  # only=[profile]: the cProfile of env.step alone
-ORDER = ("sensor_vs_pybullet", "elevation_map", "sensor_112", "physics_realtime", "kinematic_waypoints",
-         "env_steps_kinematic", "env_steps_physics", "vec_env_scaling", "train_fps_ppo", "policy_latency",
-         "rss_per_env")
+ORDER = (
+    "sensor_vs_pybullet",
+    "elevation_map",
+    "sensor_112",
+    "physics_realtime",
+    "kinematic_waypoints",
+    "env_steps_kinematic",
+    "env_steps_physics",
+    "vec_env_scaling",
+    "train_fps_ppo",
+    "policy_latency",
+    "rss_per_env",
+)
 ANCHORS = {
     "gazebo_realtime_factor": 1.0,  # DIANA-Gym simulated in Gazebo at real time
     "diana_gym_env_steps_per_s": 6.7,  # DIANA-Gym's best: at most ~6.7 env steps per second
@@ -58,7 +68,7 @@ def _measure(ctx: BenchContext, name: str) -> list[Figure]:
 
 def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
     """Measure, print the table, write ``cfg.output`` (when set); returns the result document."""
-    start = time.perf_counter()
+    start, started = time.perf_counter(), dt.datetime.now(dt.UTC)
     only = _only(cfg)
     want_profile = bool(cfg.get("profile", False)) or (only is not None and PROFILE in only)
     names_only = None if only is None else [k for k in only if k != PROFILE]
@@ -70,8 +80,11 @@ def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
     machine = machine_info()
     threads = pin_threads()
     mode = "quick" if ctx.quick else "full"
-    print(f"diana_lab bench ({mode}, {ctx.repeats} repeats): load average {machine['load_avg_before']} on "
-          f"{machine['cores']} cores, {machine['cpu_busy_pct_before']}% busy", file=sys.stderr)
+    print(
+        f"diana_lab bench ({mode}, {ctx.repeats} repeats): load average {machine['load_avg_before']} on "
+        f"{machine['cores']} cores, {machine['cpu_busy_pct_before']}% busy",
+        file=sys.stderr,
+    )
     figures: dict[str, dict[str, Any]] = {}
     for name in ordered:
         for fig in _measure(ctx, name):
@@ -89,7 +102,7 @@ def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
     result: dict[str, Any] = {
         "schema": SCHEMA_VERSION,
         "command": command or "diana_lab.benchmarks.suite.run (in process)",
-        "date": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "date": started.isoformat(timespec="seconds"),  # when the run started
         "mode": mode,
         "repeats": ctx.repeats,
         "wall_time_s": round(time.perf_counter() - start, 1),
@@ -105,8 +118,10 @@ def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
         result["profile"] = str(profile_path)
     if figures:
         print(f"\n{figures_table(figures)}")
-    print(f"\nload average before {machine['load_avg_before']}, after {machine['load_avg_after']} "
-          f"({machine['cores']} cores, {machine['cpu_model']}); {result['wall_time_s']} s")
+    print(
+        f"\nload average before {machine['load_avg_before']}, after {machine['load_avg_after']} "
+        f"({machine['cores']} cores, {machine['cpu_model']}); {result['wall_time_s']} s"
+    )
     if cfg.get("output"):
         path = Path(str(cfg.output)).expanduser()
         write_json(result, path)

@@ -4,22 +4,31 @@ The model comes from :func:`diana_lab.agents.factory.build_model` on the vectori
 :func:`diana_lab.training.envs.make_training_env` (``train.n_envs`` envs, ``train.vec_env``, VecNormalize when
 ``algo.normalize``), so this is the speed of ``python -m diana_lab algo=ppo`` without tracking, checkpoints
 and evaluations. One repeat is one rollout plus its update (``n_envs x n_steps`` steps); the quick mode
-shortens the rollout (``algo.n_steps=64``), which keeps the update cost per step the same (PPO makes
+shortens the rollout (``algo.n_steps=32``), which keeps the update cost per step the same (PPO makes
 ``n_epochs x n_envs x n_steps / batch_size`` minibatch steps per update).
 """
 
 from __future__ import annotations
 
 import time
+from typing import Any
 
 from omegaconf import OmegaConf
 
 from diana_lab.benchmarks.core import BenchContext, Figure, figure_from_samples, measurement, repeat
 from diana_lab.benchmarks.envs import DEPTH
 
-__all__ = ["train_fps_ppo"]
+__all__ = ["ppo_config", "train_fps_ppo"]
 
-QUICK_N_STEPS = 64
+QUICK_N_STEPS = 32
+
+
+def ppo_config(ctx: BenchContext) -> Any:
+    """The composed ``algo`` when it is PPO (so ``algo.*`` overrides apply), else ``conf/algo/ppo.yaml``."""
+    from diana_lab import config as C
+
+    algo_node = ctx.cfg.algo if ctx.cfg.algo.get("name") == "ppo" else C.compose([], "algo/ppo").algo
+    return C.to_object("algo", algo_node)
 
 
 @measurement("train_fps_ppo")
@@ -28,8 +37,7 @@ def train_fps_ppo(ctx: BenchContext) -> list[Figure]:
     from diana_lab.agents.factory import build_model
     from diana_lab.training.envs import make_training_env, wrap_normalize
 
-    algo_node = ctx.cfg.algo if ctx.cfg.algo.get("name") == "ppo" else C.compose([], "algo/ppo").algo
-    algo = C.to_object("algo", algo_node)
+    algo = ppo_config(ctx)
     if ctx.quick:
         algo.n_steps = QUICK_N_STEPS
     train = C.to_object("train", ctx.cfg.train)

@@ -7,7 +7,8 @@ tags, and always ends them with an explicit status, so no run is left RUNNING.
 
 A relative SQLite URI (the default ``sqlite:///mlflow.db``) is made absolute and the experiment's artefacts
 are stored beside the database (``mlruns/``), so ``mlflow ui --backend-store-uri <uri>`` finds everything
-whatever the working directory of a later process.
+whatever the working directory of a later process. Every store write is :func:`uninterrupted`: Ctrl-C waits
+for it to finish instead of leaving SQLite locked.
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from diana_lab.config.validation import ConfigError
+from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.params import chunks, flatten, truncate
 
 __all__ = ["STATUSES", "MlflowTracker", "Tracker", "resolve_uri"]
@@ -77,20 +80,26 @@ class Tracker:
 class MlflowTracker(Tracker):
     """Start (or, with ``resume_run_id``, reopen) a run in ``experiment`` of the store at ``uri``."""
 
+    @uninterrupted()
     def __init__(
         self, uri: str, experiment: str, run_name: str | None = None, resume_run_id: str | None = None
     ) -> None:
         import mlflow
+        from mlflow.exceptions import MlflowException
         from mlflow.tracking import MlflowClient
 
         _quiet_mlflow()
         self.uri = resolve_uri(uri)
-        mlflow.set_tracking_uri(self.uri)
-        self.client = MlflowClient(self.uri)
-        if resume_run_id is not None:
-            run = mlflow.start_run(run_id=resume_run_id)
-        else:
-            run = mlflow.start_run(experiment_id=self._experiment_id(experiment), run_name=run_name)
+        try:
+            mlflow.set_tracking_uri(self.uri)
+            self.client = MlflowClient(self.uri)
+            if resume_run_id is not None:
+                run = mlflow.start_run(run_id=resume_run_id)
+            else:
+                run = mlflow.start_run(experiment_id=self._experiment_id(experiment), run_name=run_name)
+        except MlflowException as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ConfigError(f"tracking.uri={uri}: cannot open an MLflow run there ({first})") from exc
         self.run_id = run.info.run_id
         self.experiment_id = run.info.experiment_id
         self._ended = False
@@ -103,9 +112,11 @@ class MlflowTracker(Tracker):
         location = (db.parent / "mlruns").as_uri() if db is not None else None
         return self.client.create_experiment(name, artifact_location=location)
 
+    @uninterrupted()
     def existing_params(self) -> dict[str, str]:
         return dict(self.client.get_run(self.run_id).data.params)
 
+    @uninterrupted()
     def log_params(self, params: dict[str, Any]) -> None:
         from mlflow.entities import Param
 
@@ -113,6 +124,7 @@ class MlflowTracker(Tracker):
         for batch in chunks(flat):
             self.client.log_batch(self.run_id, params=[Param(k, v) for k, v in batch.items()])
 
+    @uninterrupted()
     def set_tags(self, tags: dict[str, Any]) -> None:
         from mlflow.entities import RunTag
 
@@ -120,6 +132,7 @@ class MlflowTracker(Tracker):
         for batch in chunks(items):
             self.client.log_batch(self.run_id, tags=[RunTag(k, v) for k, v in batch.items()])
 
+    @uninterrupted()
     def log_metrics(self, metrics: dict[str, float], step: int) -> None:
         from mlflow.entities import Metric
 
@@ -130,15 +143,19 @@ class MlflowTracker(Tracker):
         for i in range(0, len(items), 1000):
             self.client.log_batch(self.run_id, metrics=items[i : i + 1000])
 
+    @uninterrupted()
     def log_artifact(self, path: Path | str, artifact_path: str | None = None) -> None:
         self.client.log_artifact(self.run_id, str(path), artifact_path)
 
+    @uninterrupted()
     def log_artifacts(self, directory: Path | str, artifact_path: str | None = None) -> None:
         self.client.log_artifacts(self.run_id, str(directory), artifact_path)
 
+    @uninterrupted()
     def log_text(self, text: str, artifact_file: str) -> None:
         self.client.log_text(self.run_id, text, artifact_file)
 
+    @uninterrupted()
     def end(self, status: str) -> None:
         """End the run with ``status`` (FINISHED, FAILED or KILLED); safe to call twice."""
         import mlflow

@@ -1,10 +1,10 @@
 """Checkpoints: SB3's CheckpointCallback plus saving on demand (interrupt, end), MLflow upload and pruning.
 
 Every checkpoint is ``<dir>/rl_model_<steps>_steps.zip`` with ``rl_model_vecnormalize_<steps>_steps.pkl``
-(when observations are normalised) and, for off-policy algorithms,
-``rl_model_replay_buffer_<steps>_steps.pkl`` (SB3's names). Replay buffers are hundreds of MB, so only
-the newest one is kept on disk and none is uploaded unless ``tracking.log_replay_buffer``; the model and
-the statistics go to MLflow under ``checkpoints/``. :func:`latest_checkpoint` finds what ``train.resume`` continues from.
+(when observations are normalised) and, for off-policy algorithms, ``rl_model_replay_buffer_<steps>_steps.pkl``
+(SB3's names). Replay buffers are hundreds of MB, so only the newest one is kept on disk and none is uploaded
+unless ``tracking.log_replay_buffer``; the model and the statistics go to MLflow under ``checkpoints/``.
+:func:`latest_checkpoint` finds what ``train.resume`` continues from.
 """
 
 from __future__ import annotations

@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import functools
 import json
+import multiprocessing
+import signal
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
@@ -50,7 +52,13 @@ def shared_world(world_cfg: dict[str, Any]) -> World:
 
 
 def make_env(groups: dict[str, Any], render_mode: str | None = None) -> RoverNavEnv:
-    """One env from plain env groups (module-level, so ``functools.partial(make_env, groups)`` pickles)."""
+    """One env from plain env groups (module-level, so ``functools.partial(make_env, groups)`` pickles).
+
+    In a SubprocVecEnv worker, Ctrl-C is ignored: the main process handles it (checkpoint, then closing the
+    workers); a worker that died of it first would turn the interrupt into a broken pipe in the main process.
+    """
+    if multiprocessing.parent_process() is not None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     return RoverNavEnv(config=groups, world_instance=shared_world(groups["world"]), render_mode=render_mode)
 
 

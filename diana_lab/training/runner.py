@@ -33,16 +33,17 @@ from diana_lab.cli import UserError
 from diana_lab.config.evaluation import EvalConfig
 from diana_lab.config.run import AlgoConfig, TrackingConfig, TrainConfig
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
+from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.git import git_commit, git_dirty
-from diana_lab.tracking.params import numeric_metrics
+from diana_lab.tracking.params import flatten, numeric_metrics
 from diana_lab.training.checkpoints import TrackedCheckpoints
 from diana_lab.training.context import RunContext
-from diana_lab.training.envs import env_config, make_env, make_training_env, wrap_normalize
+from diana_lab.training.envs import env_config, make_env, make_training_env, shared_world, wrap_normalize
 from diana_lab.training.episode_stats import EpisodeStats
 from diana_lab.training.periodic_eval import PeriodicEvaluation, save_model
 from diana_lab.training.progress import ProgressWithStats
 from diana_lab.training.resume import ResumePoint, find_resume_point, write_run_info
-from diana_lab.training.signals import sigterm_as_interrupt
+from diana_lab.training.signals import interrupts_as_exceptions
 from diana_lab.training.summary import TrainResult
 
 __all__ = ["RUN_GROUPS", "train"]
@@ -94,14 +95,14 @@ class TrainingRun:
 
     # ------------------------------------------------------------------ setup
     def log_run_metadata(self) -> None:
-        t = self.tracker
+        t, commit = self.tracker, git_commit()
         tags: dict[str, Any] = {
             **self.ctx.choices,
             "algo": self.algo.name,
             "seed": self.seed,
             "run_dir": str(self.run_dir.resolve()),
-            "git_commit": git_commit(),
-            "mlflow.source.git.commit": git_commit(),
+            "git_commit": commit,
+            "mlflow.source.git.commit": commit,
             "git_dirty": git_dirty(),
             "overrides": self.ctx.override_string,
         }
@@ -257,8 +258,6 @@ class TrainingRun:
 
 def _flat_missing(resolved: Any, existing: dict[str, str]) -> dict[str, Any]:
     """The config's params that the run does not have yet (a resumed run keeps its original values)."""
-    from diana_lab.tracking.params import flatten
-
     return {k: v for k, v in flatten(resolved).items() if k not in existing}
 
 
@@ -282,27 +281,29 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
         raise UserError(
             f"train.resume: {resume.source} was trained with algo={resume.algo}; pass algo={resume.algo} to continue it"
         )
-    tracker: Tracker = (
-        MlflowTracker(uri, tracking.experiment, _run_name(cfg, ctx, tracking), resume.run_id if resume else None)
-        if uri is not None
-        else Tracker()
-    )
-    run = TrainingRun(cfg, ctx, typed, tracker, resume)
-    status, summary = "FAILED", {}
-    try:
-        with sigterm_as_interrupt():
+    shared_world(env_config(cfg)["world"])  # a bad world (e.g. a DEM path) fails here, before any MLflow run
+    tracker, run, status, summary = Tracker(), None, "FAILED", {}
+    with interrupts_as_exceptions():
+        try:
             try:
+                with uninterrupted():  # an interrupt while opening the run is raised once ``tracker`` holds it
+                    if uri is not None:
+                        run_name = _run_name(cfg, ctx, tracking)
+                        tracker = MlflowTracker(uri, tracking.experiment, run_name, resume.run_id if resume else None)
+                run = TrainingRun(cfg, ctx, typed, tracker, resume)
                 run.log_run_metadata()
                 run.build()
                 run.learn()
                 summary = run.finish()
+                status = "FINISHED"
             except KeyboardInterrupt as exc:
                 status = "KILLED"
-                run.interrupted()
-                exc.result = run.result(status, summary)  # type: ignore[attr-defined]
+                if run is not None:
+                    run.interrupted()
+                    exc.result = run.result(status, summary)  # type: ignore[attr-defined]
                 raise
-        status = "FINISHED"
-        return run.result(status, summary)
-    finally:
-        run.close()
-        tracker.end(status)
+        finally:
+            if run is not None:
+                run.close()
+            tracker.end(status)
+    return run.result(status, summary)

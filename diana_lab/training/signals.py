@@ -1,5 +1,10 @@
-"""SIGTERM as a KeyboardInterrupt, so ``kill``, a job scheduler or a container stop end a run like Ctrl-C:
-checkpoint saved, MLflow run marked KILLED, instead of the process dying mid-write with the run RUNNING."""
+"""Ctrl-C and SIGTERM as exceptions raised at safe points, so a run always ends cleanly.
+
+SIGTERM (``kill``, a job scheduler, a container stop) becomes :class:`Terminated`, a ``KeyboardInterrupt``,
+so it is handled exactly like Ctrl-C: checkpoint saved, MLflow run marked KILLED, instead of the process
+dying mid-write with the run left RUNNING. Both are deferred while a tracking-store write is in progress
+(:mod:`diana_lab.tracking.atomic`).
+"""
 
 from __future__ import annotations
 
@@ -9,28 +14,38 @@ import threading
 from collections.abc import Iterator
 from types import FrameType
 
-__all__ = ["Terminated", "interrupt_exit_code", "sigterm_as_interrupt"]
+from diana_lab.tracking import atomic
+
+__all__ = ["Terminated", "interrupt_exit_code", "interrupts_as_exceptions"]
 
 
 class Terminated(KeyboardInterrupt):
     """Raised in the main thread when the process receives SIGTERM."""
 
 
-def _raise_terminated(signum: int, frame: FrameType | None) -> None:
-    raise Terminated(f"received signal {signal.Signals(signum).name}")
+def _handler(signum: int, frame: FrameType | None) -> None:
+    exc: BaseException = (
+        Terminated(f"received {signal.Signals(signum).name}") if signum == signal.SIGTERM else KeyboardInterrupt()
+    )
+    if atomic.active():
+        atomic.defer(exc)
+        return
+    raise exc
 
 
 @contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """Within the block SIGTERM raises :class:`Terminated`; the previous handler is restored afterwards."""
+def interrupts_as_exceptions() -> Iterator[None]:
+    """Within the block SIGINT raises ``KeyboardInterrupt`` and SIGTERM :class:`Terminated` (both deferred
+    during store writes); the previous handlers are restored afterwards."""
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be installed from the main thread
         return
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        for s, h in previous.items():
+            signal.signal(s, h)
 
 
 def interrupt_exit_code(exc: BaseException) -> int:

@@ -45,29 +45,29 @@ def test_run_finishes_with_params_metrics_and_loadable_model(algo, tmp_path):
     assert model.num_timesteps >= 256
 
 
-def test_resume_continues_step_counter_and_run(tmp_path):
-    base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "eval.every=0", "train.final_eval=false"]
+@pytest.mark.parametrize(("algo", "extra"), [("ppo", ["algo.normalize=true"]), ("sac", [])])
+def test_resume_continues_step_counter_and_run(algo, extra, tmp_path):
+    base = [f"algo={algo}", *TINY, *ALGO_TINY[algo], *extra, "eval.every=0", "train.final_eval=false"]
     assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
     client, (run,) = runs(tmp_path)
-    assert (
-        run_in_process(
-            [
-                *base,
-                "train.total_timesteps=512",
-                f"train.resume={run.info.run_id}",
-                *store_args(tmp_path, "second"),
-            ]
-        )
-        == 0
-    )
+    resume = ["train.total_timesteps=512", f"train.resume={run.info.run_id}", *store_args(tmp_path, "second")]
+    assert run_in_process([*base, *resume]) == 0
     client, found = runs(tmp_path)
     assert len(found) == 1  # the same MLflow run, not a new one
     run = client.get_run(run.info.run_id)
     assert run.info.status == "FINISHED" and "resumed_from" in run.data.tags
     steps = sorted(m.step for m in client.get_metric_history(run.info.run_id, "time/total_timesteps"))
-    assert steps[0] < 256 < steps[-1] and steps[-1] >= 512  # counted on from the first run, not restarted
+    assert steps[0] < 256 < steps[-1]  # counted on from the first run, not restarted
     ckpts = {a.path for a in client.list_artifacts(run.info.run_id, "checkpoints")}
     assert "checkpoints/rl_model_256_steps.zip" in ckpts and "checkpoints/rl_model_512_steps.zip" in ckpts
+    model_files = {a.path for a in client.list_artifacts(run.info.run_id, "model")}
+    if algo == "ppo":  # VecNormalize statistics travel with every model
+        assert "checkpoints/rl_model_vecnormalize_512_steps.pkl" in ckpts
+        assert "model/vecnormalize.pkl" in model_files
+    else:  # the replay buffer stays local (only the newest one)
+        assert [p.name for p in (tmp_path / "second" / "checkpoints").glob("*replay_buffer*")] == [
+            "rl_model_replay_buffer_512_steps.pkl"
+        ]
 
 
 def test_resume_from_run_dir_and_finished_budget_is_a_clear_error(tmp_path, capsys):
@@ -127,3 +127,26 @@ def test_bad_values_exit_2_without_a_run(override, message, tmp_path, capsys):
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err
     assert not runs(tmp_path)[1]  # validated before any MLflow run is opened
+
+
+def test_subprocess_envs_train_and_stop_cleanly(tmp_path):
+    args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.vec_env=subproc", "train.total_timesteps=128", "eval.every=0"]
+    assert run_in_process([*args, "train.final_eval=false", *store_args(tmp_path)]) == 0
+    _, (run,) = runs(tmp_path)
+    assert run.info.status == "FINISHED" and run.data.params["train.vec_env"] == "subproc"
+    assert run.data.metrics["time/total_timesteps"] >= 128
+
+
+def test_same_seed_same_model_other_seed_other_model(tmp_path):
+    import torch
+    from stable_baselines3 import PPO
+
+    def trained(seed: int, name: str) -> dict:
+        args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=128", "eval.every=0"]
+        args += [f"seed={seed}", "train.final_eval=false", "tracking.enabled=false", f"hydra.run.dir={tmp_path}/{name}"]
+        assert run_in_process(args) == 0
+        return PPO.load(tmp_path / name / "model" / "model.zip", device="cpu").policy.state_dict()
+
+    a, b, c = trained(0, "a"), trained(0, "b"), trained(1, "c")
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)

@@ -1,0 +1,84 @@
+"""Smoke test of ``python -m diana_lab.bench``: a tiny subset in-process, checking the JSON's structure.
+
+No timing assertions (figures depend on the machine and its load); only that the keys, their shape and
+the bookkeeping (targets, machine, versions) are what benchmarks/README.md documents.
+"""
+
+import json
+
+import pytest
+
+from diana_lab.benchmarks import run
+from diana_lab.benchmarks.core import MEASUREMENTS, all_keys, select
+from diana_lab.config import compose
+
+FIGURE_FIELDS = {"value", "unit", "p10", "p90", "n", "batch", "target", "met", "anchor", "note"}
+TOP_LEVEL = {
+    "schema",
+    "command",
+    "date",
+    "mode",
+    "repeats",
+    "machine",
+    "versions",
+    "threads",
+    "config",
+    "anchors",
+    "figures",
+    "errors",
+}
+DOCUMENTED = {
+    "sensor_ms", "sensor_ms_pybullet_raytest", "sensor_ms_pybullet_raytest_mesh", "sensor_speedup",
+    "sensor_ms_tinyrenderer", "elevation_map_ms", "sensor_ms_112", "physics_realtime_factor",
+    "physics_realtime_factor_husky", "physics_realtime_factor_rocker_bogie", "kinematic_waypoints_per_s",
+    "env_steps_per_s_kinematic", "env_steps_per_s_physics", "vec_env_scaling_2", "train_fps_ppo",
+    "policy_latency_ms_p50", "policy_latency_ms_p99", "rss_mb_per_env",
+}  # fmt: skip
+
+
+def test_subset_writes_the_documented_json(tmp_path):
+    out = tmp_path / "bench.json"
+    only = "only=[kinematic_waypoints_per_s,sensor_ms]"
+    cfg = compose(["quick=true", "repeats=1", f"output={out}", only], config_name="bench")
+    result = run(cfg, command="pytest")
+    saved = json.loads(out.read_text())
+    assert saved == json.loads(json.dumps(result))
+    assert set(saved) >= TOP_LEVEL
+    assert saved["mode"] == "quick" and saved["repeats"] == 1 and saved["errors"] == {}
+    assert set(saved["machine"]) >= {"cores", "cpu_model", "load_avg_before", "load_avg_after"}
+    assert set(saved["versions"]) >= {"numpy", "open3d", "pybullet", "torch", "stable_baselines3", "gymnasium"}
+    assert saved["threads"]["torch"] == 1
+
+    figures = saved["figures"]
+    # the sensor measurement brings its side-by-side figures along; nothing else ran
+    assert set(figures) == {
+        "kinematic_waypoints_per_s",
+        "sensor_ms",
+        "sensor_ms_pybullet_raytest",
+        "sensor_ms_pybullet_raytest_mesh",
+        "sensor_speedup",
+        "sensor_ms_tinyrenderer",
+    }
+    for key, fig in figures.items():
+        assert set(fig) >= FIGURE_FIELDS, key
+        assert fig["value"] > 0 and fig["n"] == 1 and fig["p10"] <= fig["value"] <= fig["p90"], key
+    kin = figures["kinematic_waypoints_per_s"]
+    assert kin["target"] == {"op": ">=", "value": 5000.0} and isinstance(kin["met"], bool)
+    assert figures["sensor_ms"]["target"] == {"op": "<=", "value": 0.3}
+    assert figures["sensor_speedup"]["target"] == {"op": ">=", "value": 30.0}
+    assert figures["sensor_ms_tinyrenderer"]["target"] is None and figures["sensor_ms_tinyrenderer"]["met"] is None
+    # open3d and PyBullet cast the same rays against the same surface
+    assert figures["sensor_ms_pybullet_raytest_mesh"]["max_range_diff_m"] < 1e-3
+
+
+def test_every_documented_key_is_registered_once():
+    keys = all_keys()
+    assert len(keys) == len(set(keys))
+    assert set(keys) == DOCUMENTED
+    assert [m.name for m in select(["sensor_speedup"])] == ["sensor_vs_pybullet"]
+    assert len(select(None)) == len(MEASUREMENTS)
+
+
+def test_unknown_figure_names_the_choices():
+    with pytest.raises(ValueError, match="only: unknown figure"):
+        select(["sensor_mss"])
