@@ -16,7 +16,7 @@ import numpy as np
 from diana_lab.config.env import EpisodeConfig
 from diana_lab.config.sim import RobotConfig
 from diana_lab.config.validation import ConfigError
-from diana_lab.planning import CostMap, build_costmap
+from diana_lab.planning import CostMap, shared_costmap
 from diana_lab.sim.world import World
 
 MAX_TRIES = 64
@@ -32,7 +32,7 @@ class Episode:
 class EpisodeSampler:
     def __init__(self, cfg: EpisodeConfig, world: World, robot: RobotConfig, costmap: CostMap | None = None) -> None:
         self.cfg, self.world = cfg, world
-        self.costmap = costmap if costmap is not None else build_costmap(world, robot)
+        self.costmap = costmap if costmap is not None else shared_costmap(world, robot)
         labels = self.costmap.components
         if not np.any(labels > 0):
             raise ConfigError(

@@ -144,9 +144,8 @@ class RoverNavEnv(gym.Env):
     def _clamp(self, waypoint: np.ndarray) -> np.ndarray:
         margin = self.robot.radius + self.episode_cfg.map_margin
         x0, x1, y0, y1 = self.world.bounds
-        return np.array(
-            [np.clip(waypoint[0], x0 + margin, x1 - margin), np.clip(waypoint[1], y0 + margin, y1 - margin)]
-        )
+        x, y = float(waypoint[0]), float(waypoint[1])  # scalar min/max: np.clip costs ~10 us per call here
+        return np.array([min(max(x, x0 + margin), x1 - margin), min(max(y, y0 + margin), y1 - margin)])
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -183,7 +182,8 @@ class RoverNavEnv(gym.Env):
         self._steps += 1
         self._path_length += result.path_length
         self._max_tilt = max(self._max_tilt, result.max_tilt_deg)
-        self._time_over_tilt += float(np.sum(result.sample_durations()[result.trace_tilt_deg > TILT_LIMIT_DEG]))
+        if result.max_tilt_deg > TILT_LIMIT_DEG:
+            self._time_over_tilt += float(np.sum(result.sample_durations()[result.trace_tilt_deg > TILT_LIMIT_DEG]))
         self._trail.extend(result.trace_xy[1:])
         obs = self._observe()
         outcome = self._outcome(result)

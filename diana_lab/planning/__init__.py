@@ -4,7 +4,7 @@ Used by the episode sampler (start and goal in one connected component, so a pat
 (SPL's shortest path length) and by the ``astar`` oracle baseline (waypoints along the planned path).
 """
 
-from diana_lab.planning.costmap import CostMap, CostMapConfig, build_costmap
+from diana_lab.planning.costmap import CostMap, CostMapConfig, build_costmap, shared_costmap
 from diana_lab.planning.hazards import HazardLayers, terrain_hazards
 from diana_lab.planning.paths import Path, plan, shortest_path_length, simplify
 
@@ -14,6 +14,7 @@ __all__ = [
     "HazardLayers",
     "Path",
     "build_costmap",
+    "shared_costmap",
     "plan",
     "shortest_path_length",
     "simplify",

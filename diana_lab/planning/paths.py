@@ -87,9 +87,7 @@ def _graph(costmap: CostMap, weighted: bool) -> csr_array:
         rows.append(index[src][ok])
         cols.append(index[dst][ok])
         weights.append(step * 0.5 * (cost[src][ok] + cost[dst][ok]))
-    graph = csr_array(
-        (np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(ny * nx, ny * nx)
-    )
+    graph = csr_array((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(ny * nx, ny * nx))
     costmap._cache[key] = graph
     return graph
 

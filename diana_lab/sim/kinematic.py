@@ -55,23 +55,21 @@ class KinematicDynamics:
 
         om = self.world.obstacle_map
         blocking = om.height > self.robot.ground_clearance
-        clearance = (
-            distance_transform_edt(~blocking) * om.resolution
-            if blocking.any()
-            else np.full(om.height.shape, np.inf)
-        )
+        if not blocking.any():  # a 1 x 1 sentinel: _clearance_at skips the lookup
+            return np.full((1, 1), np.inf), om.resolution, om.x_min, om.y_min
+        clearance = distance_transform_edt(~blocking) * om.resolution
         return clearance, om.resolution, om.x_min, om.y_min
 
     def _clearance_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         clearance, res, x0, y0 = self._collision_clearance
+        if clearance.size == 1:  # nothing the chassis could hit in this world
+            return np.full(np.shape(x), np.inf)
         ny, nx = clearance.shape
         ix = np.clip(np.rint((x - x0) / res).astype(np.int64), 0, nx - 1)
         iy = np.clip(np.rint((y - y0) / res).astype(np.int64), 0, ny - 1)
         return clearance[iy, ix]
 
-    def _poses(
-        self, x: np.ndarray, y: np.ndarray, yaw: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _poses(self, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Height of the base, roll and pitch at each sample (vectorised plane fit under the wheels)."""
         c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
         bx, by = self._wheels[:, 0], self._wheels[:, 1]
@@ -85,9 +83,7 @@ class KinematicDynamics:
         z = a + self.robot.base_height * (1.0 / norm)
         return z, roll, pitch
 
-    def _set_state(
-        self, x: float, y: float, yaw: float, z: float, roll: float, pitch: float, t: float
-    ) -> None:
+    def _set_state(self, x: float, y: float, yaw: float, z: float, roll: float, pitch: float, t: float) -> None:
         self._state = RoverState(np.array([x, y, z]), np.array([roll, pitch, wrap_angle(yaw)]), time=t)
 
     # ------------------------------------------------------------------ interface shared with physics
