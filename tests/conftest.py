@@ -35,6 +35,11 @@ def hills_world():
 
 
 @pytest.fixture(scope="session")
+def craters_world():
+    return build(to_object("world", "craters"))
+
+
+@pytest.fixture(scope="session")
 def jackal():
     return to_object("robot", "jackal")
 

@@ -43,7 +43,7 @@ def step(dyn: PhysicsDynamics, seconds: float) -> None:
         pb.stepSimulation(physicsClientId=scene.client)
 
 
-@pytest.mark.parametrize("world_name", ["flat_world", "hills_world", "mars_yard"])
+@pytest.mark.parametrize("world_name", ["flat_world", "hills_world", "mars_yard", "craters_world"])
 @pytest.mark.parametrize("name", ROBOTS)
 def test_spawns_settled_on_the_ground(request, world_name, name):
     world = request.getfixturevalue(world_name)
