@@ -3,7 +3,9 @@
 :func:`hydra_app` wraps a task ``fn(cfg)`` so that mistakes a user can make (bad values, missing files, a
 policy trained for another observation space) print one paragraph naming the key or file and exit with
 status 2, without a Python traceback unless ``HYDRA_FULL_ERROR=1`` is set. Hydra itself reports misspelt
-groups, options and keys the same way.
+groups, options and keys the same way. Every group with a schema is range-checked before the task starts (so
+a bad value fails in about a second, before torch is imported), and :class:`OutputDirCheck` does the same
+for a run folder that cannot be created. What the entry points accept and refuse: ``docs/reliability.md``.
 """
 
 from __future__ import annotations
@@ -12,12 +14,14 @@ import functools
 import os
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import hydra
-from omegaconf import DictConfig
+from hydra.experimental.callback import Callback
+from omegaconf import DictConfig, OmegaConf
 
-from diana_lab.config import CONF_DIR, ConfigError, store_schemas
+from diana_lab.config import CONF_DIR, SCHEMAS, ConfigError, store_schemas, validate
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ConfigError, FileNotFoundError, ValueError)
 EXIT_USER_ERROR = 2
@@ -25,6 +29,23 @@ EXIT_USER_ERROR = 2
 
 class UserError(RuntimeError):
     """Raised by entry points for user mistakes that are not config values (e.g. an unknown run id)."""
+
+
+def output_file(value: Any, key: str = "output") -> Path:
+    """The path of an output file the user named, with its folder created now: a folder that cannot be made
+    (a read-only place, a file in the way) fails before the work, naming the key, not as an ``OSError``
+    after it."""
+    path = Path(str(value)).expanduser()
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        why = "a file is in the way" if isinstance(exc, FileExistsError | NotADirectoryError) else exc.strerror
+        raise UserError(f"{key}={value}: cannot create the folder '{path.parent}' ({why or exc})") from exc
+    if path.is_dir():
+        raise UserError(f"{key}={value}: '{path}' is a folder; expected a file path")
+    if not os.access(path.parent, os.W_OK):
+        raise UserError(f"{key}={value}: the folder '{path.parent}' is not writable")
+    return path
 
 
 def report(exc: BaseException) -> None:
@@ -35,6 +56,42 @@ def report(exc: BaseException) -> None:
         print("(set HYDRA_FULL_ERROR=1 for the full traceback)", file=sys.stderr)
 
 
+class OutputDirCheck(Callback):
+    """Hydra callback (``hydra.callbacks.output_dir`` in ``conf/config.yaml``): checks that the run (or sweep)
+    folder can be created before Hydra creates it, since Hydra reports that failure with its own traceback.
+    Only looks at the nearest existing ancestor (no side effect: the folder name may hold ``${now:...}``).
+    With ``HYDRA_FULL_ERROR=1`` it stays out of the way and Hydra's traceback shows."""
+
+    def on_run_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, "hydra.run.dir")
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        self._check(config, "hydra.sweep.dir")
+
+    @staticmethod
+    def _check(config: DictConfig, key: str) -> None:
+        if os.environ.get("HYDRA_FULL_ERROR"):
+            return
+        try:
+            value = OmegaConf.select(config, key)
+        except Exception:  # an interpolation only Hydra can resolve here: leave the check to Hydra
+            return
+        if not value:
+            return
+        path = Path(str(value)).expanduser().absolute()
+        existing = next(p for p in (path, *path.parents) if p.exists())
+        problem = (
+            f"'{existing}' is a file"
+            if not existing.is_dir()
+            else f"'{existing}' is not writable"
+            if not os.access(existing, os.W_OK | os.X_OK)
+            else None
+        )
+        if problem:
+            report(UserError(f"{key}={value}: cannot create the output folder: {problem}"))
+            sys.exit(EXIT_USER_ERROR)
+
+
 def hydra_app(config_name: str = "config") -> Callable[[Callable[[DictConfig], Any]], Callable[[], None]]:
     """Decorator: turn ``task(cfg)`` into a console ``main()`` composed from ``conf/<config_name>.yaml``."""
 
@@ -42,6 +99,9 @@ def hydra_app(config_name: str = "config") -> Callable[[Callable[[DictConfig], A
         @functools.wraps(task)
         def guarded(cfg: DictConfig) -> Any:
             try:
+                # every group's range checks before the task imports its stack (torch, open3d, SB3: seconds),
+                # so a bad value fails in about a second; the tasks check again where they build things
+                validate(cfg, [g for g in cfg if g in SCHEMAS])
                 return task(cfg)
             except (*USER_ERRORS, UserError) as exc:
                 if os.environ.get("HYDRA_FULL_ERROR"):
@@ -50,6 +110,9 @@ def hydra_app(config_name: str = "config") -> Callable[[Callable[[DictConfig], A
                 sys.exit(EXIT_USER_ERROR)
 
         def main() -> None:
+            # MLflow logs at INFO when it creates a store or migrates one: noise around a one-paragraph error
+            # (a user's MLFLOW_LOGGING_LEVEL still wins)
+            os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
             store_schemas()
             hydra.main(config_path=str(CONF_DIR), config_name=config_name, version_base="1.3")(guarded)()
 

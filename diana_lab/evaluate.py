@@ -29,7 +29,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from diana_lab.cli import UserError, hydra_app
+from diana_lab.cli import UserError, hydra_app, output_file
 
 __all__ = ["env_config", "main", "run"]
 
@@ -70,6 +70,7 @@ def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     from diana_lab.evaluation.loading import check_observation_space, config_differences, load_policy
     from diana_lab.evaluation.metrics import to_json
     from diana_lab.evaluation.tracking import log_evaluation, tracking_settings
+    from diana_lab.tracking.mlflow_run import writable_store
 
     if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
         raise UserError(
@@ -77,6 +78,11 @@ def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
             "run id, e.g. python -m diana_lab.evaluate policy=astar"
         )
     eval_cfg = to_object("eval", cfg.eval)
+    # where the results go is checked before the evaluation, so a bad path does not waste it
+    output = output_file(cfg.output) if cfg.get("output") else None
+    enabled, uri, _ = tracking_settings(cfg)
+    if enabled and uri:
+        writable_store(uri)
     loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
     env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg))
     try:
@@ -101,15 +107,12 @@ def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
         dynamics = env.cfg["dynamics"].name
     finally:
         env.close()
-    if cfg.get("output"):
-        output = Path(str(cfg.output)).expanduser()
-        output.parent.mkdir(parents=True, exist_ok=True)
+    if output is not None:
         output.write_text(to_json(payload))
     print(
         f"\n{loaded.label} on {cfg.world.name} ({cfg.robot.name}, {dynamics}), {eval_cfg.episodes} episodes, "
         f"suite seed {eval_cfg.seed}:\n{table}\nresults in {out_dir}"
     )
-    enabled, _, _ = tracking_settings(cfg)
     if enabled:
         params = {
             "policy": loaded.label,

@@ -19,6 +19,7 @@ from diana_lab.config import env as _env_schemas  # noqa: F401  (registers its s
 from diana_lab.config import evaluation as _eval_schema  # noqa: F401  (registers the eval schema)
 from diana_lab.config import run as _run_schemas  # noqa: F401  (registers algo, train, tracking)
 from diana_lab.config import sensing as _sensor_schemas  # noqa: F401  (registers the sensor schemas)
+from diana_lab.config import sweep as _sweep_schema  # noqa: F401  (registers the sweep schema)
 from diana_lab.config.store import SCHEMAS, register, store_schemas
 from diana_lab.config.validation import ConfigError
 

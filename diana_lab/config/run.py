@@ -8,6 +8,7 @@ class; every field that is not in :data:`NON_SB3_KEYS` is passed to its construc
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,6 +18,8 @@ from diana_lab.config.store import register
 from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, positive
 
 VEC_ENVS = ("dummy", "subproc")
+# torch device strings SB3 accepts ("auto": cuda when available); checked here, not by torch deep in the run
+DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
 ELEVATION_ENCODERS = ("cnn", "mlp")
 
 # algo keys that configure the runner / policy rather than being constructor arguments of the SB3 class
@@ -254,6 +257,10 @@ class TrainConfig:
         _non_negative_int("train.checkpoint_every", self.checkpoint_every)
         _positive_int("train.log_interval", self.log_interval)
         _non_negative_int("train.torch_threads", self.torch_threads)
+        if not DEVICE.match(str(self.device)):
+            raise ConfigError(
+                f"train.device: expected 'cpu', 'cuda', 'cuda:<index>', 'mps' or 'auto', got {self.device!r}"
+            )
         if self.resume is not None and not str(self.resume).strip():
             raise ConfigError("train.resume: expected an MLflow run id or a path, got an empty string")
 

@@ -401,7 +401,7 @@ def run(cfg: Any) -> PolicySpec:
     """``python -m diana_lab.export``: load ``cfg.policy`` with the evaluation's loader, export it."""
     from omegaconf import OmegaConf
 
-    from diana_lab.cli import UserError
+    from diana_lab.cli import UserError, output_file
     from diana_lab.config import to_object
     from diana_lab.evaluation.loading import load_policy
 
@@ -410,6 +410,7 @@ def run(cfg: Any) -> PolicySpec:
             "policy: expected policy=<MLflow run id | model .zip or run folder | pretrained>, e.g. "
             "python -m diana_lab.export policy=outputs/run/model output=policy.onnx"
         )
+    out = output_file(cfg.output)  # before loading: a path that cannot be written fails naming `output`
     loaded = load_policy(str(cfg.policy), cfg, to_object("eval", cfg.eval))
     if loaded.model is None:
         raise UserError(f"policy={cfg.policy}: a classical baseline, not a trained policy; nothing to export")
@@ -436,11 +437,10 @@ def run(cfg: Any) -> PolicySpec:
         group("sensor"),
         group("action_space"),
         group("episode"),
-        Path(str(cfg.output)).expanduser(),
+        out,
         int(cfg.opset),
         source,
     )
-    out = Path(str(cfg.output)).expanduser()
     print(
         f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "
         f"{spec.encoding.shape} from a {spec.sensor.type}, {spec.action_space.shape} action space "

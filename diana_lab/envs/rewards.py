@@ -92,6 +92,30 @@ def stall(ctx: RewardContext) -> float:
 
 
 # --------------------------------------------------------------------------- manager
+def _probe_context() -> RewardContext:
+    """An ordinary step (1 m of progress, a reached waypoint, no outcome) to try every term on once."""
+    trace = np.zeros((2, 2))
+    result = WaypointResult("reached", 3.0, 1.0, trace, np.zeros(2), trace.copy())
+    return RewardContext(10.0, 9.0, 0.1, result, None, 1)
+
+
+def _check_term(name: str, path: str, fn: Callable[..., float], params: dict) -> None:
+    """Evaluate a term once at start-up: params it cannot work with (``scale: 0``, a string where a number
+    belongs) fail here naming the key, not as a ``ZeroDivisionError`` in the middle of training."""
+    try:
+        value = float(fn(_probe_context(), **params))
+    except Exception as exc:
+        raise ConfigError(
+            f"reward.terms.{name}.params: {path}(ctx, **{params}) fails on an ordinary step "
+            f"({type(exc).__name__}: {exc}); expected params that give a finite reward"
+        ) from exc
+    if not math.isfinite(value):
+        raise ConfigError(
+            f"reward.terms.{name}.params: {path}(ctx, **{params}) gives {value} on an ordinary step; "
+            "expected a finite reward"
+        )
+
+
 class RewardManager:
     """Resolves the configured terms once and evaluates them every step."""
 
@@ -110,6 +134,7 @@ class RewardManager:
                     f"reward.terms.{name}.params: unknown parameter(s) {sorted(unknown)} for "
                     f"{term.fn}; it accepts {sorted(accepted) or 'none'}"
                 )
+            _check_term(name, term.fn, fn, params)
             self.terms.append((name, fn, float(term.weight), params))
 
     def __call__(self, ctx: RewardContext) -> tuple[float, dict[str, float]]:

@@ -3,20 +3,26 @@
 Used by ``python -m diana_lab.evaluate`` when ``tracking.enabled`` is true: a policy from a training run is
 logged as a child run of it (tag ``mlflow.parentRunId``, in the parent's experiment), any other policy as a
 run of its own in ``tracking.experiment``. :func:`log_summary` logs into the active run, so the training
-runner can use it for its own evaluations too.
+runner can use it for its own evaluations too. The metric names are the training runner's
+(:mod:`diana_lab.tracking.names`), and the run is tagged with the options it was evaluated on (``world``,
+``robot``, ``dynamics``, ``sensor``) and its parent's ``algo`` and ``seed``, so one MLflow filter
+(``tags.algo = 'sac' and metrics.eval_spl > 0.8``) finds training runs and evaluations alike; the tag
+``diana_lab.kind = evaluation`` tells them apart.
 """
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from diana_lab.tracking.names import EVAL_PREFIX, eval_metrics
+
 __all__ = ["log_evaluation", "log_summary", "metrics_of", "tracking_settings"]
 
 DEFAULT_EXPERIMENT = "diana_lab"
+PARENT_TAGS = ("algo", "seed")  # what the policy was trained as, copied from the training run
 
 
 def tracking_settings(cfg: DictConfig) -> tuple[bool, str | None, str]:
@@ -27,20 +33,12 @@ def tracking_settings(cfg: DictConfig) -> tuple[bool, str | None, str]:
     return enabled, (str(uri) if uri else None), str(experiment)
 
 
-def metrics_of(summary: dict[str, Any], prefix: str = "eval_") -> dict[str, float]:
+def metrics_of(summary: dict[str, Any], prefix: str = EVAL_PREFIX) -> dict[str, float]:
     """Finite numbers of a summary as metrics; ``<key>_ci95`` becomes ``<key>_ci95_lo`` / ``_hi``."""
-    out: dict[str, float] = {}
-    for key, value in summary.items():
-        if isinstance(value, list | tuple) and len(value) == 2:
-            for bound, v in zip(("lo", "hi"), value):
-                if isinstance(v, int | float) and math.isfinite(v):
-                    out[f"{prefix}{key}_{bound}"] = float(v)
-        elif isinstance(value, int | float) and math.isfinite(value):
-            out[f"{prefix}{key}"] = float(value)
-    return out
+    return eval_metrics(summary, prefix)
 
 
-def log_summary(summary: dict[str, Any], prefix: str = "eval_", step: int | None = None) -> None:
+def log_summary(summary: dict[str, Any], prefix: str = EVAL_PREFIX, step: int | None = None) -> None:
     """Log a summary's metrics into the active MLflow run."""
     import mlflow
 
@@ -82,7 +80,7 @@ def log_evaluation(
             )
         run = mlflow.start_run(experiment_id=experiment_id, run_name=name)
     with run:
-        mlflow.set_tag("diana_lab.kind", "evaluation")
+        mlflow.set_tags(_group_tags(client, params, parent_run_id))
         mlflow.log_params({k: str(v)[:500] for k, v in params.items()})
         for prefix, summary in summaries.items():
             log_summary(summary, prefix)
@@ -91,3 +89,15 @@ def log_evaluation(
                 rel = path.parent.relative_to(out_dir)
                 mlflow.log_artifact(str(path), artifact_path=None if str(rel) == "." else str(rel))
         return run.info.run_id
+
+
+def _group_tags(client: Any, params: dict[str, Any], parent_run_id: str | None) -> dict[str, str]:
+    """The evaluation run's tags: its kind, the env options it ran on, the parent's ``algo`` and ``seed``."""
+    from diana_lab.training.context import TAG_GROUPS
+
+    tags = {"diana_lab.kind": "evaluation"}
+    if parent_run_id is not None:
+        parent = client.get_run(parent_run_id).data.tags
+        tags.update({k: parent[k] for k in PARENT_TAGS if k in parent})
+    tags.update({k: str(v) for k, v in params.items() if k in TAG_GROUPS and v is not None})
+    return tags

@@ -13,7 +13,9 @@ except contacts with obstacles, which are checked every physics step while an ob
   within ``cfg.stuck_window_s`` while the controller commands motion;
 * ``out_of_bounds``: the rover's centre leaves the terrain;
 * ``sim_error``: a non-finite or absurd state (speed above 20 m/s, spin above 50 rad/s, fallen through the
-  terrain) or a PyBullet error.
+  terrain) or a PyBullet error. ``state`` then stays at the last sane pose (finite observations and reward for
+  the episode's last step), and the next ``reset`` rebuilds the PyBullet client, since a NaN body can leave
+  it broken for good (the rover then falls through the terrain at every spawn).
 
 Contact model, and why. PyBullet's multibody solver resolves friction along two directions fixed in the world
 (not along the slip velocity), so an isotropic wheel friction makes a skid-steer rover's ability to turn in
@@ -63,11 +65,29 @@ class PhysicsDynamics:
 
     def __init__(self, cfg: PhysicsConfig, world: World, robot: RobotConfig, *, gui: bool = False) -> None:
         self.cfg, self.world, self.robot = cfg, world, robot
-        self._scene = PybulletScene(world, robot, gui=gui)
-        self._client = c = self._scene.client
-        self._body = self._scene.robot_id
+        self._gui = gui
         self._steps_per_tick = max(1, round(1.0 / (cfg.controller.rate_hz * cfg.time_step)))
         self._tick = self._steps_per_tick * cfg.time_step
+        self._build_scene()
+        if world.obstacles:  # bounding circles (xy) for the cheap "is an obstacle close?" test
+            self._ob_xy = np.array([ob.centre[:2] for ob in world.obstacles])
+            self._ob_r = np.array(
+                [np.max(np.linalg.norm(ob.vertices[:, :2] - ob.centre[:2], axis=1)) for ob in world.obstacles]
+            )
+        self._time = 0.0
+        self._bounds = world.bounds
+        # below the lowest terrain point by this much: fell through the heightfield (tunnelling)
+        self._floor = world.terrain.min_height - FALL_THROUGH_DEPTH
+        # after a sim_error: the last sane state (what ``state`` reports until the next reset rebuilds the scene)
+        self._wreck: RoverState | None = None
+
+    # ------------------------------------------------------------------ set-up
+    def _build_scene(self) -> None:
+        """A fresh PyBullet client with the world, the rover and the contact model of the module docstring."""
+        cfg, robot = self.cfg, self.robot
+        self._scene = PybulletScene(self.world, robot, gui=self._gui)
+        self._client = c = self._scene.client
+        self._body = self._scene.robot_id
         pb.setGravity(0.0, 0.0, -GRAVITY, physicsClientId=c)
         pb.setPhysicsEngineParameter(
             fixedTimeStep=cfg.time_step,
@@ -84,17 +104,7 @@ class PhysicsDynamics:
         self._n_left = len(self._scene.wheels_left)
         self._torques = [float(robot.max_wheel_torque)] * len(self._wheels)
         self._obstacles = {bid: i for i, bid in enumerate(self._scene.obstacle_ids)}
-        if world.obstacles:  # bounding circles (xy) for the cheap "is an obstacle close?" test
-            self._ob_xy = np.array([ob.centre[:2] for ob in world.obstacles])
-            self._ob_r = np.array(
-                [np.max(np.linalg.norm(ob.vertices[:, :2] - ob.centre[:2], axis=1)) for ob in world.obstacles]
-            )
-        self._time = 0.0
-        self._bounds = world.bounds
-        # below the lowest terrain point by this much: fell through the heightfield (tunnelling)
-        self._floor = world.terrain.min_height - FALL_THROUGH_DEPTH
 
-    # ------------------------------------------------------------------ set-up
     def _set_friction(self) -> None:
         c, body = self._client, self._body
         for bid in (self._scene.terrain_id, *self._scene.obstacle_ids):
@@ -153,7 +163,13 @@ class PhysicsDynamics:
     # ------------------------------------------------------------------ state
     @property
     def state(self) -> RoverState:
-        """Ground truth of the base link (velocities are those of the base's centre of mass, world frame)."""
+        """Ground truth of the base link (velocities are those of the base's centre of mass, world frame).
+
+        After a ``sim_error`` it is the last sane state, at rest, until the next reset: the env computes the
+        final observation and reward from it, and NaN there would reach the learner's buffers and statistics.
+        """
+        if self._wreck is not None:
+            return self._wreck.copy()
         pos, rpy, lin, ang = self._scene.base_state()
         return RoverState(pos, rpy, lin, ang, self._time)
 
@@ -191,6 +207,10 @@ class PhysicsDynamics:
         (no tunnelling, no bounce) while the wheels hold still. ``rng`` is unused: the spawn is deterministic.
         """
         del rng
+        if self._wreck is not None:  # a blown-up body can poison the client for good (e.g. NaN in the
+            self._scene.close()  # broadphase: the rover then falls through the terrain at every spawn)
+            self._build_scene()
+            self._wreck = None
         x, y = float(xy[0]), float(xy[1])
         bx, by, hz = self._footprint_heights(x, y, yaw)
         design = np.column_stack([np.ones_like(bx), bx, by])
@@ -223,6 +243,7 @@ class PhysicsDynamics:
         controller.start()
         x, y = float(st.position[0]), float(st.position[1])
         roll, pitch = float(st.rpy[0]), float(st.rpy[1])
+        sane = (tuple(st.position), tuple(st.rpy))  # the last pose that passed the checks
         xs, ys, rolls, pitches = [x], [y], [roll], [pitch]
         anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, st.yaw, 0.0  # last pose that counted as progress
         arm = 0.5 * self.robot.track_width  # rotation progress: the arc the wheels travel
@@ -243,12 +264,15 @@ class PhysicsDynamics:
                 rpy = pb.getEulerFromQuaternion(orn)
             except pb.error as exc:
                 outcome, detail = "sim_error", f"PyBullet: {exc}"
+                self._wrecked(*sane)
                 break
             elapsed += self._tick
             self._time += self._tick
             outcome, detail = self._check(pos, rpy, lin, ang, hit)
             if outcome == "sim_error":
-                break  # keep the traces finite
+                self._wrecked(*sane)  # keep the traces and the state finite
+                break
+            sane = (pos, rpy)
             length += math.hypot(pos[0] - x, pos[1] - y)
             x, y, yaw = pos[0], pos[1], rpy[2]
             xs.append(x)
@@ -269,7 +293,8 @@ class PhysicsDynamics:
                 )
             else:
                 est_xy, est_yaw = (x, y), yaw
-        self._drive(0.0, 0.0)  # hold the wheels until the next command
+        if self._wreck is None:  # a wrecked client is rebuilt at reset; it may not take commands any more
+            self._drive(0.0, 0.0)  # hold the wheels until the next command
         rp = np.column_stack([rolls, pitches])
         return WaypointResult(
             outcome,
@@ -280,6 +305,10 @@ class PhysicsDynamics:
             rp,
             detail,
         )
+
+    def _wrecked(self, position: tuple[float, ...], rpy: tuple[float, ...]) -> None:
+        """Freeze ``state`` at the last sane pose; the next :meth:`reset` rebuilds the scene."""
+        self._wreck = RoverState(np.array(position), np.array(rpy), np.zeros(3), np.zeros(3), self._time)
 
     def _step_tick(self, x: float, y: float) -> str:
         """Advance one control period; returns the name of an obstacle touched ('' if none).

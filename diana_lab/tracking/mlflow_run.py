@@ -14,6 +14,7 @@ for it to finish instead of leaving SQLite locked.
 from __future__ import annotations
 
 import logging
+import os
 import time
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from diana_lab.config.validation import ConfigError
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.params import chunks, flatten, truncate
 
-__all__ = ["STATUSES", "MlflowTracker", "Tracker", "resolve_uri"]
+__all__ = ["STATUSES", "MlflowTracker", "Tracker", "resolve_uri", "writable_store"]
 
 STATUSES = ("FINISHED", "FAILED", "KILLED")
 MAX_TAG = 8000  # mlflow.utils.validation.MAX_TAG_VAL_LENGTH
@@ -38,6 +39,27 @@ def resolve_uri(uri: str) -> str:
 
 def sqlite_path(uri: str) -> Path | None:
     return Path(uri[len(SQLITE) :]) if uri.startswith(SQLITE + "/") else None
+
+
+def writable_store(uri: str, key: str = "tracking.uri") -> str:
+    """``uri`` resolved; for an SQLite store, its folder is created and checked writable now, so a place that
+    cannot hold the database (a missing or read-only folder, a file in the way) fails with a message naming
+    ``key`` instead of an ``OSError`` from deep inside MLflow -- or, for an evaluation, after the work."""
+    resolved = resolve_uri(uri)
+    db = sqlite_path(resolved)
+    if db is None:
+        return resolved
+    try:
+        db.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        why = "a file is in the way" if isinstance(exc, FileExistsError | NotADirectoryError) else exc.strerror
+        raise ConfigError(
+            f"{key}={uri}: cannot create the folder '{db.parent}' for the SQLite store ({why or exc})"
+        ) from exc
+    target = db if db.exists() else db.parent
+    if not os.access(target, os.W_OK):
+        raise ConfigError(f"{key}={uri}: '{target}' is not writable; expected a writable SQLite store path")
+    return resolved
 
 
 def _quiet_mlflow() -> None:
@@ -78,26 +100,34 @@ class Tracker:
 
 
 class MlflowTracker(Tracker):
-    """Start (or, with ``resume_run_id``, reopen) a run in ``experiment`` of the store at ``uri``."""
+    """Start (or, with ``resume_run_id``, reopen) a run in ``experiment`` of the store at ``uri``; a new run
+    with ``parent_run_id`` is nested under that run (a sweep trial under its study's run)."""
 
     @uninterrupted()
     def __init__(
-        self, uri: str, experiment: str, run_name: str | None = None, resume_run_id: str | None = None
+        self,
+        uri: str,
+        experiment: str,
+        run_name: str | None = None,
+        resume_run_id: str | None = None,
+        parent_run_id: str | None = None,
     ) -> None:
         import mlflow
         from mlflow.exceptions import MlflowException
         from mlflow.tracking import MlflowClient
 
         _quiet_mlflow()
-        self.uri = resolve_uri(uri)
+        self.uri = writable_store(uri)
         try:
             mlflow.set_tracking_uri(self.uri)
             self.client = MlflowClient(self.uri)
             if resume_run_id is not None:
                 run = mlflow.start_run(run_id=resume_run_id)
             else:
-                run = mlflow.start_run(experiment_id=self._experiment_id(experiment), run_name=run_name)
-        except MlflowException as exc:
+                run = mlflow.start_run(
+                    experiment_id=self._experiment_id(experiment), run_name=run_name, parent_run_id=parent_run_id
+                )
+        except (MlflowException, OSError) as exc:  # OSError: e.g. the disk is full or the database read-only
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise ConfigError(f"tracking.uri={uri}: cannot open an MLflow run there ({first})") from exc
         self.run_id = run.info.run_id

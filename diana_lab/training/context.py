@@ -2,14 +2,21 @@
 
 Read from ``HydraConfig`` under ``python -m diana_lab``; tests and notebooks that compose a config without a
 Hydra app pass a :class:`RunContext` of their own (any folder, no choices).
+
+A caller that drives many runs (``python -m diana_lab.sweep``) also hands over hooks: ``parent_run_id`` nests
+the MLflow run under its own (a study's trial), ``tags`` label it, and ``on_eval(step, summary)`` sees every
+periodic evaluation -- it may raise :class:`StopRun` to end training early (pruning), which ends the run with
+``StopRun.status`` instead of FAILED.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
-__all__ = ["TAG_GROUPS", "RunContext"]
+__all__ = ["TAG_GROUPS", "EvalHook", "RunContext", "StopRun"]
 
 # the config groups whose chosen option becomes an MLflow tag (filterable in the UI: tags.world = "mars_yard")
 TAG_GROUPS = (
@@ -25,12 +32,26 @@ TAG_GROUPS = (
 )
 
 
+EvalHook = Callable[[int, dict[str, Any]], None]  # (timesteps, evaluation summary)
+
+
+class StopRun(Exception):
+    """Raised by a hook to end training early on purpose (e.g. a pruned sweep trial): the run is cleaned up
+    and its MLflow run ends with :attr:`status` rather than FAILED; the exception then propagates, with the
+    partial result attached as ``exc.result``."""
+
+    status = "KILLED"
+
+
 @dataclass(frozen=True)
 class RunContext:
     run_dir: Path
     choices: dict[str, str] = field(default_factory=dict)  # group -> option, e.g. {"algo": "ppo"}
     overrides: tuple[str, ...] = ()  # the command line's task overrides
     job_num: int | None = None  # index of the job in a multirun
+    parent_run_id: str | None = None  # nest the MLflow run under this run (tag mlflow.parentRunId)
+    tags: Mapping[str, Any] = field(default_factory=dict)  # extra MLflow tags of the run
+    on_eval: EvalHook | None = None  # called after every periodic evaluation (may raise StopRun)
 
     @classmethod
     def from_hydra(cls) -> RunContext:

@@ -23,7 +23,15 @@ from diana_lab.config.run import AlgoConfig, TrainConfig
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.world import World
 
-__all__ = ["env_config", "eval_env_config", "make_env", "make_training_env", "shared_world", "wrap_normalize"]
+__all__ = [
+    "check_env",
+    "env_config",
+    "eval_env_config",
+    "make_env",
+    "make_training_env",
+    "shared_world",
+    "wrap_normalize",
+]
 
 MONITOR_KEYWORDS = ("outcome",)  # copied from the last step's info into Monitor's episode record
 _WORLDS: dict[str, World] = {}
@@ -60,6 +68,21 @@ def make_env(groups: dict[str, Any], render_mode: str | None = None) -> RoverNav
     if multiprocessing.parent_process() is not None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
     return RoverNavEnv(config=groups, world_instance=shared_world(groups["world"]), render_mode=render_mode)
+
+
+def check_env(groups: dict[str, Any], seed: int) -> None:
+    """Build one env from ``groups`` and reset it once, then close it.
+
+    The runner calls this before it opens an MLflow run: every mistake that only shows when the env is built
+    or draws its first episode (a DEM that cannot be read, a reward term that cannot be imported or evaluated,
+    a URDF that is not there, goal distances the world cannot hold) then fails with no run left behind. The
+    world and its cost map are cached in this process, so the envs built next reuse them.
+    """
+    env = make_env(groups)
+    try:
+        env.reset(seed=seed)
+    finally:
+        env.close()
 
 
 def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int) -> VecEnv:

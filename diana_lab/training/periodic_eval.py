@@ -2,9 +2,10 @@
 
 One plain (non-vectorised) env with the training config -- and the evaluation's dynamics, through
 :func:`diana_lab.evaluation.core.eval_env` -- runs the same :func:`~diana_lab.evaluation.make_suite` episodes
-each time, so the ``eval/*`` curves compare like with like. The policy sees observations normalised with the
+each time, so the ``eval_*`` curves compare like with like. The policy sees observations normalised with the
 training VecNormalize's current statistics (``normalize_obs`` reads them without updating them).
-Metrics go to MLflow as ``eval/<key>`` at step = timesteps; the console table shows the main ones too.
+Metrics go to MLflow as ``eval_<key>`` at step = timesteps (the names of :mod:`diana_lab.tracking.names`,
+shared with the final and the CLI's evaluations); the console table shows the main ones under ``eval/``.
 """
 
 from __future__ import annotations
@@ -19,7 +20,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from diana_lab.config.evaluation import EvalConfig
 from diana_lab.tracking.mlflow_run import Tracker
-from diana_lab.tracking.params import numeric_metrics
+from diana_lab.tracking.names import eval_metrics
+from diana_lab.training.context import EvalHook
 
 __all__ = ["PeriodicEvaluation", "save_model"]
 
@@ -42,13 +44,22 @@ class PeriodicEvaluation(BaseCallback):
     """Args:
     make_env: builds the evaluation env on first use (so a run without evaluations never builds it).
     eval_cfg: episodes, seed, distance range and dynamics of the suite; ``eval_cfg.every`` the period.
-    tracker: where ``eval/*`` metrics and the ``best/`` model go.
+    tracker: where ``eval_*`` metrics and the ``best/`` model go.
     best_dir: local folder of the best model so far.
+    on_eval: called with ``(timesteps, summary)`` after each evaluation is recorded; may raise to stop.
     """
 
-    def __init__(self, make_env: Callable[[], gym.Env], eval_cfg: EvalConfig, tracker: Tracker, best_dir: Path) -> None:
+    def __init__(
+        self,
+        make_env: Callable[[], gym.Env],
+        eval_cfg: EvalConfig,
+        tracker: Tracker,
+        best_dir: Path,
+        on_eval: EvalHook | None = None,
+    ) -> None:
         super().__init__()
         self.make_env, self.cfg, self.tracker, self.best_dir = make_env, eval_cfg, tracker, best_dir
+        self.on_eval = on_eval
         self.every = eval_cfg.every
         self.best_spl = -math.inf
         self.last_step: int | None = None
@@ -89,7 +100,7 @@ class PeriodicEvaluation(BaseCallback):
         summary = summarize(run_suite(policy, env, self._suite))
         step = self.model.num_timesteps
         self.last_step, self.last_summary = step, summary
-        self.tracker.log_metrics(numeric_metrics(summary, "eval/"), step)
+        self.tracker.log_metrics(eval_metrics(summary), step)
         for key in CONSOLE_KEYS:
             value = summary.get(key)
             if isinstance(value, int | float):
@@ -100,6 +111,8 @@ class PeriodicEvaluation(BaseCallback):
             for path in save_model(self.model, self.best_dir):
                 self.tracker.log_artifact(path, "best")
             self.tracker.set_tags({"best_spl": f"{spl:.4f}", "best_step": step})
+        if self.on_eval is not None:
+            self.on_eval(step, summary)
         return summary
 
     def close(self) -> None:

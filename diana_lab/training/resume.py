@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 import re
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -69,6 +70,8 @@ def _from_path(path: Path, uri: str | None) -> ResumePoint:
         raise UserError(
             f"train.resume: no checkpoint (checkpoints/rl_model_<steps>_steps.zip) or model/model.zip under '{path}'"
         )
+    if not zipfile.is_zipfile(ckpt.model):  # now, not once the resumed MLflow run is open
+        raise UserError(f"train.resume: '{ckpt.model}' is not a Stable-Baselines3 model archive (not a zip file)")
     info: dict[str, Any] = {}
     for d in (path, path.parent, path.parent.parent):
         info = read_run_info(d)

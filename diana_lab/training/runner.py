@@ -2,7 +2,8 @@
 
 :func:`train` is the whole of ``python -m diana_lab``. Its order matters for users:
 
-1. every group is validated before anything starts, so a bad value fails in a second with no MLflow run;
+1. every group is validated, and one env is built and reset (:func:`check_env`), before anything starts, so a
+   bad value or file fails in seconds with no MLflow run;
 2. the MLflow run is opened (or reopened, for ``train.resume``) and always ended -- FINISHED, FAILED on an
    exception, KILLED on Ctrl-C or SIGTERM -- never left RUNNING;
 3. an interrupt saves a checkpoint first, so ``train.resume`` can continue with the same step counter.
@@ -35,15 +36,16 @@ from diana_lab.config.run import AlgoConfig, TrackingConfig, TrainConfig
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.git import git_commit, git_dirty
-from diana_lab.tracking.params import flatten, numeric_metrics
+from diana_lab.tracking.names import eval_metrics
+from diana_lab.tracking.params import flatten
 from diana_lab.training.checkpoints import TrackedCheckpoints
-from diana_lab.training.context import RunContext
-from diana_lab.training.envs import env_config, make_env, make_training_env, shared_world, wrap_normalize
+from diana_lab.training.context import TAG_GROUPS, RunContext, StopRun
+from diana_lab.training.envs import check_env, env_config, make_env, make_training_env, wrap_normalize
 from diana_lab.training.episode_stats import EpisodeStats
 from diana_lab.training.periodic_eval import PeriodicEvaluation, save_model
 from diana_lab.training.progress import ProgressWithStats
 from diana_lab.training.resume import ResumePoint, find_resume_point, write_run_info
-from diana_lab.training.signals import interrupts_as_exceptions
+from diana_lab.training.signals import InterruptCheck, interrupts_as_exceptions
 from diana_lab.training.summary import TrainResult
 
 __all__ = ["RUN_GROUPS", "train"]
@@ -96,7 +98,10 @@ class TrainingRun:
     # ------------------------------------------------------------------ setup
     def log_run_metadata(self) -> None:
         t, commit = self.tracker, git_commit()
+        # the option chosen per group; runs started without Hydra (notebooks, sweeps) fall back to its name
+        named = {g: OmegaConf.select(self.cfg, f"{g}.name") for g in TAG_GROUPS if g != "experiment"}
         tags: dict[str, Any] = {
+            **{g: v for g, v in named.items() if v is not None},
             **self.ctx.choices,
             "algo": self.algo.name,
             "seed": self.seed,
@@ -105,6 +110,7 @@ class TrainingRun:
             "mlflow.source.git.commit": commit,
             "git_dirty": git_dirty(),
             "overrides": self.ctx.override_string,
+            **self.ctx.tags,
         }
         if self.ctx.job_num is not None:
             tags["hydra_job"] = self.ctx.job_num
@@ -166,8 +172,9 @@ class TrainingRun:
             self.eval_cfg,
             self.tracker,
             self.run_dir / "best",
+            on_eval=self.ctx.on_eval,
         )
-        cbs: list[BaseCallback] = [EpisodeStats(), self.checkpoints, self.evaluator]
+        cbs: list[BaseCallback] = [InterruptCheck(), EpisodeStats(), self.checkpoints, self.evaluator]
         if self.train_cfg.progress_bar:
             self.progress = ProgressWithStats()
             cbs.append(self.progress)
@@ -203,7 +210,7 @@ class TrainingRun:
             print(f"\ninterrupted at {ckpt.steps} steps: checkpoint {ckpt.model}", file=sys.stderr)
 
     def finish(self) -> dict[str, Any]:
-        """Final checkpoint and model, the final evaluation (files + ``eval/*``), the best model if needed."""
+        """Final checkpoint and model, the final evaluation (files + ``eval_*``), the best model if needed."""
         assert self.model is not None and self.checkpoints is not None and self.evaluator is not None
         self.checkpoints.save()
         for path in save_model(self.model, self.run_dir / "model"):
@@ -221,7 +228,7 @@ class TrainingRun:
             seed=self.eval_cfg.seed,
         )
         summary = evaluate(policy, env, self.eval_cfg, out)
-        self.tracker.log_metrics(numeric_metrics(summary, "eval/"), self.model.num_timesteps)
+        self.tracker.log_metrics(eval_metrics(summary), self.model.num_timesteps)
         self.tracker.log_artifacts(out, "eval")
         spl = float(summary.get("spl", math.nan))
         if math.isfinite(spl) and spl > self.evaluator.best_spl:  # e.g. no periodic evaluation ran
@@ -274,14 +281,17 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
         import torch
 
         torch.set_num_threads(train_cfg.torch_threads)
-    set_random_seed(int(cfg.seed))
+    seed = cfg.get("seed")
+    if isinstance(seed, bool) or not isinstance(seed, int):  # the root key has no schema to check it
+        raise C.ConfigError(f"seed: expected an integer, got {seed!r}")
+    set_random_seed(seed)
     uri = resolve_uri(tracking.uri) if tracking.enabled else None
     resume = find_resume_point(str(train_cfg.resume), uri, ctx.run_dir / "resume") if train_cfg.resume else None
     if resume is not None and resume.algo and resume.algo != typed["algo"].name:
         raise UserError(
             f"train.resume: {resume.source} was trained with algo={resume.algo}; pass algo={resume.algo} to continue it"
         )
-    shared_world(env_config(cfg)["world"])  # a bad world (e.g. a DEM path) fails here, before any MLflow run
+    check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
     tracker, run, status, summary = Tracker(), None, "FAILED", {}
     with interrupts_as_exceptions():
         try:
@@ -289,7 +299,13 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
                 with uninterrupted():  # an interrupt while opening the run is raised once ``tracker`` holds it
                     if uri is not None:
                         run_name = _run_name(cfg, ctx, tracking)
-                        tracker = MlflowTracker(uri, tracking.experiment, run_name, resume.run_id if resume else None)
+                        tracker = MlflowTracker(
+                            uri,
+                            tracking.experiment,
+                            run_name,
+                            resume.run_id if resume else None,
+                            parent_run_id=ctx.parent_run_id,
+                        )
                 run = TrainingRun(cfg, ctx, typed, tracker, resume)
                 run.log_run_metadata()
                 run.build()
@@ -300,6 +316,11 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
                 status = "KILLED"
                 if run is not None:
                     run.interrupted()
+                    exc.result = run.result(status, summary)  # type: ignore[attr-defined]
+                raise
+            except StopRun as exc:  # a hook ended training on purpose (a pruned sweep trial)
+                status = exc.status
+                if run is not None:
                     exc.result = run.result(status, summary)  # type: ignore[attr-defined]
                 raise
         finally:

@@ -4,6 +4,11 @@ SIGTERM (``kill``, a job scheduler, a container stop) becomes :class:`Terminated
 so it is handled exactly like Ctrl-C: checkpoint saved, MLflow run marked KILLED, instead of the process
 dying mid-write with the run left RUNNING. Both are deferred while a tracking-store write is in progress
 (:mod:`diana_lab.tracking.atomic`).
+
+Python swallows an exception raised while a finalizer or a weakref callback runs ("Exception ignored in
+..."), and a signal can land there (SQLAlchemy's garbage-collection hooks, for one): the interrupt would be
+lost and training go on. So the handler also remembers the interrupt, and safe points raise it again if it
+never arrived: :class:`InterruptCheck` on every training step, and :func:`raise_pending` elsewhere.
 """
 
 from __future__ import annotations
@@ -14,9 +19,13 @@ import threading
 from collections.abc import Iterator
 from types import FrameType
 
+from stable_baselines3.common.callbacks import BaseCallback
+
 from diana_lab.tracking import atomic
 
-__all__ = ["Terminated", "interrupt_exit_code", "interrupts_as_exceptions"]
+__all__ = ["InterruptCheck", "Terminated", "interrupt_exit_code", "interrupts_as_exceptions", "raise_pending"]
+
+_pending: BaseException | None = None  # the last interrupt, until it propagates out of interrupts_as_exceptions
 
 
 class Terminated(KeyboardInterrupt):
@@ -24,9 +33,11 @@ class Terminated(KeyboardInterrupt):
 
 
 def _handler(signum: int, frame: FrameType | None) -> None:
+    global _pending
     exc: BaseException = (
         Terminated(f"received {signal.Signals(signum).name}") if signum == signal.SIGTERM else KeyboardInterrupt()
     )
+    _pending = exc
     if atomic.active():
         atomic.defer(exc)
         return
@@ -40,12 +51,33 @@ def interrupts_as_exceptions() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield  # signal handlers can only be installed from the main thread
         return
+    global _pending
     previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
+    except BaseException:
+        _pending = None  # delivered: it is propagating now
+        raise
     finally:
         for s, h in previous.items():
             signal.signal(s, h)
+    raise_pending()  # an interrupt swallowed inside the block
+
+
+def raise_pending() -> None:
+    """Raise an interrupt that a handler raised where Python swallowed it (see the module docstring)."""
+    global _pending
+    if _pending is not None:
+        exc, _pending = _pending, None
+        raise exc
+
+
+class InterruptCheck(BaseCallback):
+    """A safe point on every training step: raises an interrupt that never arrived."""
+
+    def _on_step(self) -> bool:
+        raise_pending()
+        return True
 
 
 def interrupt_exit_code(exc: BaseException) -> int:

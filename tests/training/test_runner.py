@@ -31,10 +31,10 @@ def test_run_finishes_with_params_metrics_and_loadable_model(algo, tmp_path):
     assert run.data.params["algo.name"] == algo and run.data.params["train.total_timesteps"] == "256"
     assert run.data.params["sensor.width"] == "16"
     metrics = run.data.metrics
-    assert "eval/success_rate" in metrics and "eval/spl" in metrics
+    assert "eval_success_rate" in metrics and "eval_spl" in metrics
     assert "time/fps" in metrics and "rollout/ep_rew_mean" in metrics
     assert "train/reward_progress" in metrics and "train/outcome_timeout" in metrics
-    history = client.get_metric_history(run.info.run_id, "eval/success_rate")
+    history = client.get_metric_history(run.info.run_id, "eval_success_rate")
     assert max(m.step for m in history) >= 256  # step = timesteps
     artefacts = {a.path for a in client.list_artifacts(run.info.run_id)}
     assert {"model", "best", "checkpoints", "eval", ".hydra", "config_resolved.yaml"} <= artefacts
@@ -150,3 +150,16 @@ def test_same_seed_same_model_other_seed_other_model(tmp_path):
     a, b, c = trained(0, "a"), trained(0, "b"), trained(1, "c")
     assert all(torch.equal(a[k], b[k]) for k in a)
     assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_runs_started_without_hydra_are_tagged_with_each_group(tmp_path):
+    """Notebooks and sweeps call ``train`` directly: tags still name the chosen worlds, robots, sensors..."""
+    from diana_lab.config import compose
+    from diana_lab.training import train
+    from diana_lab.training.context import RunContext
+
+    cfg = compose([*TINY, *ALGO_TINY["ppo"], "robot=husky", f"tracking.uri=sqlite:///{tmp_path}/mlflow.db"])
+    train(cfg, RunContext(tmp_path / "run"))
+    _, found = runs(tmp_path)
+    tags = found[0].data.tags
+    assert (tags["world"], tags["robot"], tags["sensor"], tags["algo"]) == ("flat", "husky", "depth_camera", "ppo")

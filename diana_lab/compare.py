@@ -1,0 +1,60 @@
+"""``python -m diana_lab.compare [filter=...] [metrics=[...]] [experiments=[...]] output=<dir>``
+
+Compares tracked runs: selects them with an MLflow filter, groups runs that differ only in their seed, and
+writes ``runs.csv``/``runs.md`` (one row per run: chosen options, seed, metrics), ``groups.csv``/``groups.md``
+(mean ± std over seeds), ``curves_<metric>.png`` (learning curves) and ``final_metrics.png``::
+
+    python -m diana_lab.compare output=cmp
+    python -m diana_lab.compare "filter=\\"tags.algo = 'sac' and metrics.eval_spl > 0.8\\"" output=cmp
+    python -m diana_lab.compare 'group_by=[algo,reward]' 'metrics=[eval_spl,eval_tipover_rate]' output=cmp
+    python -m diana_lab.compare tracking.uri=sqlite:///runs/mlflow.db 'experiments=[diana_lab,sweep]'
+
+No run matching (or a store, experiment or filter that does not exist) prints one paragraph naming the
+filter and exits with status 2. The metric names are in ``docs/metrics.md``.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from diana_lab.cli import hydra_app
+
+__all__ = ["main"]
+
+
+@hydra_app(config_name="compare")
+def main(cfg: DictConfig) -> None:
+    from diana_lab.comparison import compare_runs, write_report
+    from diana_lab.comparison.report import groups_markdown
+
+    experiments = [str(e) for e in cfg.experiments] or [str(cfg.tracking.experiment)]
+    c = compare_runs(
+        str(cfg.tracking.uri),
+        experiments,
+        str(cfg.filter or ""),
+        metrics=[str(m) for m in cfg.metrics],
+        curves=[str(m) for m in cfg.curves],
+        group_by=[str(g) for g in cfg.group_by],
+        variants=bool(cfg.variants),
+        include_evaluations=bool(cfg.include_evaluations),
+    )
+    for metric, close in c.missing_metrics.items():
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        print(f"warning: no selected run logged {metric}{hint}", file=sys.stderr)
+    if c.skipped:
+        print(
+            f"note: left out {len(c.skipped)} run(s) without any of the metrics: {', '.join(c.skipped)}",
+            file=sys.stderr,
+        )
+    files = write_report(c, Path(str(cfg.output)))
+    where = f"{', '.join(experiments)}" + (f", filter {cfg.filter!r}" if cfg.filter else "")
+    print(f"{len(c.runs)} runs in {len(c.groups)} groups ({where}):\n")
+    print(groups_markdown(c))
+    print("\nwrote " + ", ".join(str(p) for p in files))
+
+
+if __name__ == "__main__":
+    main()

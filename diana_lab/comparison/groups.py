@@ -1,0 +1,163 @@
+"""Which runs are repeats of one experiment, and their statistics over seeds.
+
+Runs form one group when they chose the same options of the ``group_by`` groups (their tags) and -- with
+``variants`` -- also agree on every other config value except the seed and bookkeeping (``params.*``; e.g.
+two PPO runs with different ``algo.learning_rate`` are two groups, labelled by the values that differ).
+That is the "differ only in ``seed``" rule without the user listing every key a sweep may have changed.
+Group labels name only what differs between the groups of the selection, so plots stay readable.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from diana_lab.comparison.runs import tag
+
+__all__ = ["IGNORED_PARAMS", "aggregate", "assign_groups", "learning_curves", "runs_table"]
+
+# params that do not change what is learnt (or are the seed): never a reason to split a group
+IGNORED_PARAMS = (
+    "seed",
+    "tracking.*",
+    "train.resume",
+    "train.progress_bar",
+    "train.device",
+    "train.torch_threads",
+    "train.vec_env",
+    "train.checkpoint_every",
+    "train.log_interval",
+    "train.final_eval",
+    "eval.video",
+    "eval.plots",
+)
+MAX_LABEL_ITEMS = 3  # params named in a variant label before "+N more"
+MAX_VALUE_CHARS = 24
+
+
+def _param_columns(df: pd.DataFrame) -> list[str]:
+    keys = [c[len("params.") :] for c in df.columns if c.startswith("params.")]
+    return [f"params.{k}" for k in keys if not any(fnmatch.fnmatchcase(k, p) for p in IGNORED_PARAMS)]
+
+
+def _short(value: str) -> str:
+    return value if len(value) <= MAX_VALUE_CHARS else value[: MAX_VALUE_CHARS - 1] + "…"
+
+
+def _variant_labels(block: pd.DataFrame, columns: list[str]) -> pd.Series:
+    """Within runs of the same options, a label of the config values that differ ("" when none do)."""
+    values = block[columns].fillna("").astype(str)
+    varying = [c for c in columns if values[c].nunique() > 1]
+    if not varying:
+        return pd.Series([""] * len(block), index=block.index, dtype=object)
+
+    def label(row: pd.Series) -> str:
+        items = [f"{c[len('params.') :]}={_short(row[c])}" for c in varying[:MAX_LABEL_ITEMS]]
+        extra = len(varying) - MAX_LABEL_ITEMS
+        return ", ".join(items) + (f" +{extra} more" if extra > 0 else "")
+
+    return values.apply(label, axis=1)
+
+
+def assign_groups(df: pd.DataFrame, group_by: Sequence[str], variants: bool = True) -> pd.DataFrame:
+    """A copy of ``df`` (from :func:`~diana_lab.comparison.runs.load_runs`) with the columns ``seed``,
+    ``variant`` (config differences beyond ``group_by``; "" without ``variants``), ``group`` (a readable
+    label, unique per group) and one column per ``group_by`` tag."""
+    out = df.copy()
+    for g in group_by:
+        out[g] = tag(out, g)
+    out["seed"] = tag(out, "seed")
+    out["variant"] = ""
+    params = _param_columns(out)
+    if variants and params:
+        blocks = [b for _, b in out.groupby(list(group_by), sort=False)] if group_by else [out]
+        for block in blocks:
+            out.loc[block.index, "variant"] = _variant_labels(block, params)
+    shown = [g for g in group_by if out[g].nunique() > 1]
+
+    def label(row: pd.Series) -> str:
+        parts = [f"{g}={row[g]}" for g in shown]
+        if row["variant"]:
+            parts.append(str(row["variant"]))
+        return " / ".join(parts)
+
+    out["group"] = out.apply(label, axis=1) if len(out) else pd.Series(dtype=object)
+    if len(out) and (out["group"] == "").all():  # everything alike: name it by its options
+        out["group"] = " / ".join(str(out[g].iloc[0]) for g in group_by if out[g].iloc[0]) or "all runs"
+    return out
+
+
+def _metric_column(metric: str) -> str:
+    return f"metrics.{metric}"
+
+
+def runs_table(grouped: pd.DataFrame, group_by: Sequence[str], metrics: Sequence[str]) -> pd.DataFrame:
+    """One row per run: id, name, status, group, chosen options, seed, then the metrics (NaN if not logged)."""
+    table = pd.DataFrame(
+        {
+            "run_id": grouped["run_id"],
+            "run_name": tag(grouped, "mlflow.runName"),
+            "status": grouped.get("status", ""),
+            "group": grouped["group"],
+            **{g: grouped[g] for g in group_by},
+            "variant": grouped["variant"],
+            "seed": grouped["seed"],
+        }
+    )
+    for m in metrics:
+        col = _metric_column(m)
+        table[m] = grouped[col].astype(float) if col in grouped else np.nan
+    return table.reset_index(drop=True)
+
+
+def aggregate(table: pd.DataFrame, group_by: Sequence[str], metrics: Sequence[str]) -> pd.DataFrame:
+    """Per group of :func:`runs_table`: ``runs``, ``seeds`` and each metric's ``<m>_mean`` / ``<m>_std``
+    (sample standard deviation over the runs; NaN for a single run)."""
+    rows = []
+    for name, block in table.groupby("group", sort=False):
+        row: dict[str, object] = {"group": name}
+        row.update({g: block[g].iloc[0] for g in group_by})
+        row["variant"] = block["variant"].iloc[0]
+        row["runs"] = len(block)
+        row["seeds"] = ",".join(sorted(block["seed"].astype(str), key=lambda s: (len(s), s)))
+        for m in metrics:
+            values = block[m].astype(float)
+            row[f"{m}_mean"] = values.mean()
+            row[f"{m}_std"] = values.std(ddof=1) if values.notna().sum() > 1 else np.nan
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def learning_curves(histories: pd.DataFrame, groups: pd.Series) -> pd.DataFrame:
+    """Mean and spread over the runs of each group at every step any of them was evaluated.
+
+    ``histories`` is :func:`~diana_lab.comparison.runs.metric_histories`' frame, ``groups`` maps run id to
+    group label. Runs of one group evaluated at slightly different steps are linearly interpolated onto
+    the union of their steps, never extrapolated (a run counts only inside its own step range).
+    Columns: ``metric``, ``group``, ``step``, ``mean``, ``std`` (NaN below two runs), ``n``.
+    """
+    rows: list[dict[str, object]] = []
+    hist = histories.assign(group=histories["run_id"].map(groups))
+    for (metric, group), block in hist.dropna(subset=["group"]).groupby(["metric", "group"], sort=False):
+        steps = np.unique(block["step"].to_numpy())
+        curves = []
+        for _, run in block.groupby("run_id"):
+            x, y = run["step"].to_numpy(dtype=float), run["value"].to_numpy(dtype=float)
+            curve = np.interp(steps, x, y)
+            curve[(steps < x.min()) | (steps > x.max())] = np.nan
+            curves.append(curve)
+        stack = np.vstack(curves)
+        n = np.isfinite(stack).sum(axis=0)
+        with warnings.catch_warnings():  # all-NaN columns cannot occur, one-run columns are masked below
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mean = np.nanmean(stack, axis=0)
+            std = np.where(n > 1, np.nanstd(stack, axis=0, ddof=1), np.nan)
+        rows.extend(
+            {"metric": metric, "group": group, "step": int(s), "mean": m, "std": sd, "n": int(k)}
+            for s, m, sd, k in zip(steps, mean, std, n)
+        )
+    return pd.DataFrame(rows, columns=["metric", "group", "step", "mean", "std", "n"])

@@ -1,0 +1,266 @@
+"""Run (or continue) a study: check everything, open the study and its MLflow run, optimise, report.
+
+:func:`run_sweep` is the whole of ``python -m diana_lab.sweep``. Its order matters for users:
+
+1. the sweep file, the command line and a trial config with every searched key at its low end are checked
+   before anything is created, so a typo fails in seconds, naming the file and line, with exit status 2;
+2. the study is created or loaded (several workers, reruns), trials left RUNNING by killed workers of this
+   machine are failed, and the study's MLflow run is created or reopened;
+3. trials run until the study holds ``n_trials`` counted trials (:mod:`diana_lab.sweeps.study`), the timeout
+   passes, or Ctrl-C / SIGTERM (the trial FAIL, its run and the study's run KILLED; rerun to continue);
+4. whatever happened, the study's run gets the trials CSV, the plots and the best trial, and the console the
+   table of the best trials and the command that reproduces the best one.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import optuna
+from omegaconf import DictConfig, OmegaConf
+
+from diana_lab import config as C
+from diana_lab.config.run import TrackingConfig
+from diana_lab.config.sweep import SweepConfig
+from diana_lab.config.validation import ConfigError
+from diana_lab.sweeps import report
+from diana_lab.sweeps.compose import compose_run, override_keys
+from diana_lab.sweeps.mlflow_runs import PARENT_ATTR, ParentRun, SweepClient
+from diana_lab.sweeps.objective import Objective, TrialPlan
+from diana_lab.sweeps.spec import SweepSpec, load_spec
+from diana_lab.sweeps.storage import dashboard_command, display_url, make_storage, resolve_storage
+from diana_lab.sweeps.study import (
+    TrialBudget,
+    fail_dead_trials,
+    make_pruner,
+    make_sampler,
+    open_study,
+    wait_for,
+    worker_id,
+)
+from diana_lab.tracking.git import git_commit
+from diana_lab.training.runner import RUN_GROUPS
+from diana_lab.training.signals import interrupts_as_exceptions
+
+__all__ = ["SweepResult", "run_sweep", "sweep_overrides"]
+
+
+class _QuietInterrupts(logging.Filter):
+    """Optuna logs a failed trial with its traceback; for Ctrl-C / SIGTERM that is noise, not a bug report."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and isinstance(record.exc_info[1], KeyboardInterrupt):
+            record.exc_info, record.exc_text = None, None
+        return True
+
+
+logging.getLogger("optuna.study._optimize").addFilter(_QuietInterrupts())
+
+PARENT_WAIT_S = 60.0  # how long a worker waits for the study's creator to create the MLflow parent run
+_ABSENT = object()
+
+
+@dataclass
+class SweepResult:
+    study_name: str
+    storage: str
+    status: str  # FINISHED | KILLED | FAILED (this worker's ending)
+    counts: dict[str, int] = field(default_factory=dict)
+    best_value: float = math.nan
+    best_params: dict[str, Any] = field(default_factory=dict)
+    best_trial: int | None = None
+    reproduce: str | None = None
+    parent_run_id: str | None = None
+    table: str = ""
+
+
+def sweep_overrides(overrides: tuple[str, ...] | list[str]) -> tuple[str, ...]:
+    """The command line's config overrides for every trial: all but the ``sweep.*`` ones."""
+    return tuple(o for o in overrides if not o.lstrip("+~").startswith(("sweep.", "sweep=")))
+
+
+def _check(spec: SweepSpec, params: tuple, cli: tuple[str, ...]) -> TrackingConfig:
+    """Fail fast on a bad base override, an unknown searched key or a low end the schema rejects."""
+    plan = TrialPlan(spec=spec, params=params, cli=cli, seeds=(), out_dir=Path("."), study_name="check")
+    try:
+        cfg, _ = compose_run(plan.overrides({}))
+    except ConfigError as exc:
+        raise ConfigError(f"{spec.where()}: base overrides and command line: {exc}") from exc
+    for p in params:
+        if OmegaConf.select(cfg, p.key, default=_ABSENT, throw_on_missing=False) is _ABSENT:
+            raise ConfigError(f"{spec.where(p.key)}: params.{p.key}: no such key in the composed config")
+    low = {p.key: p.low_value() for p in params}
+    try:
+        cfg, _ = compose_run(plan.overrides(low))
+        typed = C.validate(cfg, [g for g in RUN_GROUPS if g in cfg])
+    except ConfigError as exc:
+        key = next((p.key for p in params if str(exc).startswith(p.key)), None)
+        raise ConfigError(f"{spec.where(key)}: with every searched key at its low end: {exc}") from exc
+    return typed["tracking"]
+
+
+def _parent_run(
+    study: optuna.Study, created: bool, tracking: TrackingConfig, name: str, tags: dict[str, Any]
+) -> ParentRun | None:
+    if not tracking.enabled:
+        return None
+    run_id = study.user_attrs.get(PARENT_ATTR)
+    if run_id is None and not created and not study.get_trials(deepcopy=False):
+        # the worker that created the study is creating the MLflow run (and, maybe, the MLflow database)
+        wait_for(lambda: PARENT_ATTR in study.user_attrs, PARENT_WAIT_S)
+        run_id = study.user_attrs.get(PARENT_ATTR)
+    client = SweepClient(tracking.uri, tracking.experiment)
+    parent = ParentRun.open(client, run_id, name, tags)
+    if parent.created:
+        study.set_user_attr(PARENT_ATTR, parent.run_id)
+        study.set_user_attr("mlflow_tracking_uri", client.uri)
+    return parent
+
+
+def _report(
+    study: optuna.Study, plan: TrialPlan, parent: ParentRun | None, out_dir: Path, full: bool, top: int
+) -> SweepResult:
+    counts = report.counts(study)
+    result = SweepResult(study.study_name, "", "", counts=counts, parent_run_id=parent.run_id if parent else None)
+    best = report.best_trial(study)
+    if best is not None:
+        result.best_value, result.best_params, result.best_trial = float(best.value), dict(best.params), best.number
+        result.reproduce = report.reproduce_command(plan, best)
+    result.table = report.top_table(study, plan.spec.metric, top).to_string(index=False)
+    csv = report.write_trials_csv(study, out_dir / "study" / "trials.csv")
+    if parent is None:
+        return result
+    client = parent.client
+    finished = counts["complete"] + counts["pruned"] + counts["fail"]
+    client.log_metrics(parent.run_id, {f"trials_{k}": v for k, v in counts.items() if k != "waiting"}, finished)
+    client.log_artifact(parent.run_id, csv, "study")
+    if best is not None:
+        ids = best.user_attrs.get("run_ids") or []
+        summary = {k: v for k, v in best.user_attrs.items() if isinstance(v, int | float) and k != "number"}
+        info = {"number": best.number, "value": best.value, "overrides": result.reproduce, "summary": summary}
+        info["run_id"] = ids[0] if ids else None
+        parent.log_best(info, best.params, finished)
+    if full:
+        for path in report.write_plots(study, out_dir / "study" / "plots"):
+            client.log_artifact(parent.run_id, path, "plots")
+    return result
+
+
+def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -> SweepResult:
+    """Run this worker's share of the study described by ``cfg.sweep`` (see the module docstring)."""
+    settings: SweepConfig = C.to_object("sweep", cfg.sweep)
+    spec = load_spec(settings.name).with_settings(settings)
+    cli = sweep_overrides(overrides)
+    fixed = override_keys(cli)
+    params = tuple(p for p in spec.params if p.key not in fixed)
+    if not params:
+        raise ConfigError(f"{spec.where()}: every searched key is fixed on the command line; nothing to search")
+    for p in spec.params:
+        if p.key in fixed:
+            print(f"note: {p.key} is set on the command line, so it is not searched", file=sys.stderr)
+    tracking = _check(spec, params, cli)
+
+    storage_url = resolve_storage(settings.storage)
+    storage = make_storage(storage_url, settings.heartbeat_s)
+    name = settings.study_name or spec.name
+    sampler = make_sampler(settings.sampler, settings.sampler_seed)
+    study, created = open_study(
+        storage, name, spec.direction, sampler, make_pruner(settings.pruner, settings.pruner_startup_trials)
+    )
+    dead = fail_dead_trials(study)
+    if dead:
+        print(f"note: trial(s) {dead} were left RUNNING by a killed worker: marked FAIL", file=sys.stderr)
+
+    commit = git_commit()
+    tags = {
+        "sweep": spec.name,
+        "sweep_file": str(spec.path.resolve()),
+        "optuna_study": name,
+        "optuna_storage": display_url(storage_url),
+        "sampler": settings.sampler,
+        "pruner": settings.pruner,
+        "objective": f"{spec.direction} {spec.metric}",
+        "n_trials": spec.n_trials,
+        "base_overrides": " ".join(spec.base),
+        "overrides": " ".join(cli),
+        "git_commit": commit,
+        "mlflow.source.git.commit": commit,
+    }
+    result = SweepResult(name, storage_url, "FAILED")
+    parent: ParentRun | None = None
+    plan: TrialPlan | None = None
+    status = "FAILED"
+    with interrupts_as_exceptions():
+        try:
+            parent = _parent_run(study, created, tracking, f"sweep-{name}", tags)
+            if parent is not None:
+                parent.client.log_new_params(parent.run_id, {f"space.{p.key}": p.expression for p in spec.params})
+                parent.client.kill_running(name, dead)  # the dead trials' runs, left RUNNING by their worker
+            plan = TrialPlan(
+                spec=spec,
+                params=params,
+                cli=cli,
+                seeds=tuple(settings.seeds),
+                out_dir=out_dir,
+                study_name=name,
+                parent_run_id=parent.run_id if parent else None,
+                client=parent.client if parent else None,
+                tags={"sweep": spec.name},
+            )
+            budget = TrialBudget(spec.n_trials)
+            left = budget.remaining(study)
+            print(
+                f"study '{name}' ({display_url(storage_url)}): {spec.n_trials - left} of {spec.n_trials} trials "
+                f"done or running; {spec.direction} {spec.metric}",
+                file=sys.stderr,
+            )
+            if left > 0:
+                study.optimize(
+                    Objective(plan, worker_id()),
+                    n_trials=spec.n_trials,  # a cap for this worker; the budget callback stops it earlier
+                    timeout=settings.timeout_s,
+                    catch=(Exception,),
+                    callbacks=[budget],
+                    gc_after_trial=True,
+                )
+            status = "FINISHED"
+        except KeyboardInterrupt:
+            status = "KILLED"
+            raise
+        finally:
+            if plan is not None:
+                try:
+                    result = _report(study, plan, parent, out_dir, status == "FINISHED", settings.top)
+                except KeyboardInterrupt:
+                    status = "KILLED"
+                finally:
+                    result.storage, result.status = storage_url, status
+            if parent is not None:
+                others_running = any(
+                    t.state == optuna.trial.TrialState.RUNNING for t in study.get_trials(deepcopy=False)
+                )
+                if status != "FINISHED" or not others_running:
+                    parent.end(status)
+    return result
+
+
+def summary_text(result: SweepResult, top: int = 10) -> str:
+    """The console report: counts, the top trials, the best trial's command, where to look next."""
+    c = result.counts
+    lines = [
+        f"study '{result.study_name}': {c.get('complete', 0)} complete, {c.get('pruned', 0)} pruned, "
+        f"{c.get('fail', 0)} failed, {c.get('running', 0)} running",
+    ]
+    if result.table:
+        lines += ["", f"top trials (at most {top}):", result.table]
+    if result.best_trial is not None:
+        lines += ["", f"best trial {result.best_trial}: {result.best_value:.4g}", "reproduce:", f"  {result.reproduce}"]
+    lines += ["", f"dashboard: {dashboard_command(result.storage)}"]
+    if result.parent_run_id:
+        lines.append(f"MLflow study run: {result.parent_run_id}")
+    return "\n".join(lines)

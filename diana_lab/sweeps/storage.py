@@ -1,0 +1,75 @@
+"""Where a study lives: a journal file by default (nothing to start), or any Optuna RDB URL for many machines.
+
+* A value without ``://`` is a journal file (``optuna.journal``, relative to the working directory): Optuna's
+  JournalFileBackend appends under a file lock, so workers on one machine (or an NFS share) can share it; a
+  lock left by a killed worker is broken after its grace period, so nobody waits forever.
+* ``sqlite:///x.db``, ``postgresql+psycopg2://user:pw@host:5432/db``, ``mysql+pymysql://...``: an RDBStorage.
+  Workers send a heartbeat every ``heartbeat_s`` seconds; a trial whose worker died (SIGKILL, a lost machine)
+  is failed by the next worker that starts a trial, so it does not stay RUNNING for ever.
+
+``optuna-dashboard <storage>`` reads both forms (:func:`dashboard_command`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import optuna
+from optuna.storages import BaseStorage, JournalStorage, RDBStorage
+from optuna.storages.journal import JournalFileBackend
+
+from diana_lab.config.validation import ConfigError
+from diana_lab.tracking.mlflow_run import resolve_uri
+
+__all__ = ["dashboard_command", "display_url", "is_rdb", "make_storage", "resolve_storage"]
+
+
+def is_rdb(storage: str) -> bool:
+    return "://" in storage
+
+
+def resolve_storage(storage: str) -> str:
+    """An absolute journal path or SQLite file, so every worker and the dashboard find the same study."""
+    if is_rdb(storage):
+        return resolve_uri(storage)
+    return str(Path(storage).expanduser().resolve())
+
+
+def display_url(storage: str) -> str:
+    """The storage without its password (for tags and messages)."""
+    if not is_rdb(storage):
+        return storage
+    try:
+        from sqlalchemy.engine import make_url
+
+        return make_url(storage).render_as_string(hide_password=True)
+    except Exception:
+        return storage.split("@", 1)[-1] if "@" in storage else storage
+
+
+def make_storage(storage: str, heartbeat_s: int = 60) -> BaseStorage:
+    """The Optuna storage for ``sweep.storage`` (already resolved); a clear error when it cannot be opened."""
+    try:
+        if not is_rdb(storage):
+            path = Path(storage)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            return JournalStorage(JournalFileBackend(str(path)))
+        heartbeat = {"heartbeat_interval": heartbeat_s, "grace_period": 2 * heartbeat_s} if heartbeat_s else {}
+        with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna; we rely on them knowingly
+            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+            return RDBStorage(storage, engine_kwargs={"pool_pre_ping": True}, **heartbeat)
+    except ImportError as exc:  # e.g. postgresql:// without psycopg2
+        raise ConfigError(f"sweep.storage={display_url(storage)}: missing database driver ({exc})") from exc
+    except (optuna.exceptions.StorageInternalError, OSError, ValueError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(f"sweep.storage={display_url(storage)}: cannot open the study storage ({first})") from exc
+    except Exception as exc:  # SQLAlchemy's OperationalError and friends: a server that is not there
+        if type(exc).__module__.startswith("sqlalchemy"):
+            first = str(exc).strip().splitlines()[0]
+            raise ConfigError(f"sweep.storage={display_url(storage)}: cannot connect ({first})") from exc
+        raise
+
+
+def dashboard_command(storage: str) -> str:
+    return f"optuna-dashboard {display_url(storage)}"

@@ -1,0 +1,63 @@
+"""``python -m diana_lab.compare``: the files it writes, and a clear exit 2 when nothing matches."""
+
+from __future__ import annotations
+
+import sys
+
+import pandas as pd
+import pytest
+from PIL import Image
+
+
+def run_compare(args: list[str]) -> int:
+    from diana_lab.compare import main
+
+    saved = sys.argv
+    sys.argv = ["diana_lab.compare", *args, "hydra/job_logging=disabled", "hydra/hydra_logging=disabled"]
+    try:
+        main()
+    except SystemExit as exc:
+        return int(exc.code or 0)
+    finally:
+        sys.argv = saved
+    return 0
+
+
+def test_writes_tables_and_curves_of_the_selected_runs(store, tmp_path, capsys):
+    uri, _ = store
+    out = tmp_path / "cmp"
+    code = run_compare(
+        [f"tracking.uri={uri}", "filter=\"tags.world = 'flat'\"", "group_by=[algo,world]", f"output={out}"]
+    )
+    assert code == 0, capsys.readouterr().err
+    names = {p.name for p in out.iterdir()}
+    assert {"runs.csv", "runs.md", "groups.csv", "groups.md", "final_metrics.png"} <= names
+    assert {"curves_eval_success_rate.png", "curves_eval_spl.png"} <= names
+    runs = pd.read_csv(out / "runs.csv", dtype={"seed": str})
+    assert len(runs) == 4 and set(runs["algo"]) == {"ppo", "a2c"}  # the evaluation run is left out
+    assert {"world", "seed", "eval_success_rate", "eval_spl", "eval_tipover_rate"} <= set(runs.columns)
+    groups = pd.read_csv(out / "groups.csv").set_index("group")
+    assert groups.loc["algo=ppo / algo.learning_rate=0.0003", "runs"] == 2
+    assert groups.loc["algo=ppo / algo.learning_rate=0.0003", "eval_spl_mean"] == pytest.approx(0.6)
+    md = (out / "groups.md").read_text()
+    assert "0.700 ± 0.141" in md  # success rate of the two seeds: mean ± sample std
+    assert (out / ".hydra" / "config.yaml").is_file()  # the comparison's own record
+    with Image.open(out / "curves_eval_spl.png") as im:
+        assert im.size[0] > 300
+    printed = capsys.readouterr().out
+    assert "4 runs in 3 groups" in printed
+
+
+def test_no_matching_run_exits_2_naming_the_filter(store, tmp_path, capsys):
+    uri, _ = store
+    code = run_compare([f"tracking.uri={uri}", "filter=\"tags.algo = 'sac'\"", f"output={tmp_path / 'cmp'}"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "filter=\"tags.algo = 'sac'\": no runs match" in err and "Traceback" not in err
+
+
+def test_typo_in_a_metric_warns_with_the_close_name(store, tmp_path, capsys):
+    uri, _ = store
+    code = run_compare([f"tracking.uri={uri}", "metrics=[eval_spl,eval_sucess_rate]", f"output={tmp_path / 'c'}"])
+    assert code == 0
+    assert "no selected run logged eval_sucess_rate (did you mean eval_success_rate" in capsys.readouterr().err

@@ -1,0 +1,125 @@
+"""diana_lab.comparison on a store with known numbers: selection, groups over seeds, statistics, curves."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from diana_lab.comparison import (
+    ComparisonError,
+    assign_groups,
+    compare_runs,
+    learning_curves,
+    load_runs,
+    plot_learning_curves,
+)
+
+GROUP_BY = ("algo", "world", "reward")
+
+
+def test_load_runs_filters_by_tag_and_metric_and_leaves_out_evaluations(store):
+    uri, _ = store
+    df = load_runs(uri, ["diana_lab"], "tags.algo = 'ppo' and metrics.eval_spl >= 0.5")
+    assert sorted(df["params.seed"]) == ["0", "1"]  # the two seeds of the good config (0.7, 0.5)
+    assert len(load_runs(uri, ["diana_lab"])) == 4
+    assert len(load_runs(uri, ["diana_lab"], include_evaluations=True)) == 5
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "message"),
+    [
+        ({"filter_string": "tags.algo = 'dqn'"}, "filter=\"tags.algo = 'dqn'\": no runs match"),
+        ({"filter_string": "tags.algo === 'x'"}, "MLflow cannot use it"),
+        ({"experiments": ["nope"]}, "experiments=['nope']: no such experiment"),
+    ],
+)
+def test_load_runs_errors_name_what_to_change(store, kwargs, message):
+    uri, _ = store
+    args = {"experiments": ["diana_lab"], **kwargs}
+    with pytest.raises(ComparisonError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        load_runs(uri, **args)
+
+
+def test_missing_store_is_an_error_not_a_new_empty_database(tmp_path):
+    with pytest.raises(ComparisonError, match="no MLflow store"):
+        load_runs(f"sqlite:///{tmp_path}/missing.db", ["diana_lab"])
+    assert not (tmp_path / "missing.db").exists()
+
+
+def test_runs_differing_only_in_seed_form_one_group_and_other_params_split(store):
+    uri, _ = store
+    g = assign_groups(load_runs(uri, ["diana_lab"]), GROUP_BY)
+    labels = dict(zip(zip(g["tags.algo"], g["params.algo.learning_rate"], g["seed"]), g["group"]))
+    assert labels["ppo", "0.0003", "0"] == labels["ppo", "0.0003", "1"]  # seeds (and progress_bar) merged
+    assert labels["ppo", "0.0003", "0"] == "algo=ppo / algo.learning_rate=0.0003"
+    assert labels["ppo", "0.001", "0"] == "algo=ppo / algo.learning_rate=0.001"
+    assert labels["a2c", "0.0007", "0"] == "algo=a2c"  # alone in its options: no variant needed
+    assert g["group"].nunique() == 3
+    lumped = assign_groups(load_runs(uri, ["diana_lab"]), GROUP_BY, variants=False)
+    assert sorted(lumped["group"].unique()) == ["algo=a2c", "algo=ppo"]
+
+
+def test_aggregate_gives_mean_and_sample_std_over_seeds(store):
+    uri, _ = store
+    c = compare_runs(uri, ["diana_lab"], "", metrics=["eval_success_rate", "eval_spl"], group_by=GROUP_BY)
+    row = c.groups.set_index("group").loc["algo=ppo / algo.learning_rate=0.0003"]
+    assert row["runs"] == 2 and row["seeds"] == "0,1"
+    assert row["eval_success_rate_mean"] == pytest.approx(0.7)
+    assert row["eval_success_rate_std"] == pytest.approx(np.std([0.8, 0.6], ddof=1))
+    single = c.groups.set_index("group").loc["algo=a2c"]
+    assert single["eval_spl_mean"] == pytest.approx(0.3) and math.isnan(single["eval_spl_std"])
+    assert set(c.runs.columns) >= {"run_id", "group", "algo", "world", "seed", "eval_spl"}
+    assert c.missing_metrics == {}
+
+
+def test_unknown_metric_is_reported_with_close_names(store):
+    uri, _ = store
+    c = compare_runs(uri, ["diana_lab"], metrics=["eval_spl", "eval_spll"], curves=[])
+    assert c.missing_metrics == {"eval_spll": ["eval_spl"]}
+    assert c.runs["eval_spll"].isna().all()
+
+
+def test_learning_curves_average_seeds_and_never_extrapolate():
+    hist = pd.DataFrame(
+        {
+            "run_id": ["a", "a", "a", "b", "b", "c"],
+            "metric": ["m"] * 6,
+            "step": [100, 200, 300, 100, 250, 100],
+            "value": [0.0, 0.4, 0.8, 0.2, 0.6, 0.5],
+        }
+    )
+    curves = learning_curves(hist, pd.Series({"a": "g", "b": "g", "c": "h"})).set_index(["group", "step"])
+    assert list(curves.loc["g"].index) == [100, 200, 250, 300]
+    assert curves.loc[("g", 100), "mean"] == pytest.approx(0.1) and curves.loc[("g", 100), "n"] == 2
+    assert curves.loc[("g", 200), "mean"] == pytest.approx((0.4 + 0.2 + 0.4 * 100 / 150) / 2)  # b interpolated
+    assert curves.loc[("g", 300), "n"] == 1 and math.isnan(curves.loc[("g", 300), "std"])  # b ended at 250
+    assert curves.loc[("h", 100), "mean"] == 0.5
+
+
+def test_curves_from_the_store_follow_metric_history(store):
+    uri, _ = store
+    c = compare_runs(uri, ["diana_lab"], "tags.algo = 'ppo'", group_by=GROUP_BY)
+    # only PPO selected: the labels name what differs between its groups, the learning rate
+    good = c.curves[(c.curves["group"] == "algo.learning_rate=0.0003") & (c.curves["metric"] == "eval_spl")]
+    assert list(good["step"]) == [100, 200, 300]
+    assert list(good["mean"]) == pytest.approx([0.05, 0.4, 0.6])
+    fig = plot_learning_curves(c.curves, "eval_spl")
+    ax = fig.axes[0]
+    assert len(ax.get_lines()) == 2 and len(ax.collections) >= 1  # two groups, a band for the two seeds
+    assert {t.get_text() for t in ax.get_legend().get_texts()} == {
+        "algo.learning_rate=0.0003 (n=2)",
+        "algo.learning_rate=0.001 (n=1)",
+    }
+
+
+def test_runs_without_any_requested_metric_are_left_out_with_a_note(store):
+    uri, _ = store
+    c = compare_runs(uri, ["diana_lab"], metrics=["eval_spl"], curves=[], include_evaluations=True)
+    assert len(c.runs) == 5 and c.skipped == []
+    with pytest.raises(ComparisonError, match="none logged any of train/approx_kl"):
+        compare_runs(uri, ["diana_lab"], metrics=["train/approx_kl"], curves=[])
+    c = compare_runs(uri, ["diana_lab"], metrics=["train/reward_goal"], curves=[], include_evaluations=True)
+    assert c.skipped == ["eval astar"] and len(c.runs) == 4

@@ -1,0 +1,123 @@
+"""Sweep files: the shipped ones are complete and compose; mistakes name the file and the line."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+
+from diana_lab.config import ConfigError, compose, validate
+from diana_lab.sweeps.spec import SWEEPS_DIR, load_spec
+
+from .helpers import run_in_process, sweep_args, write_sweep
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_reward_shaping_searches_every_default_term_and_the_deadband():
+    spec = load_spec("reward_shaping")
+    terms = yaml.safe_load((ROOT / "conf/reward/default.yaml").read_text())["terms"]
+    keys = {p.key for p in spec.params}
+    assert {f"reward.terms.{t}.weight" for t in terms} <= keys
+    assert "reward.terms.roll.params.deadband_deg" in keys
+    # one deadband: pitch follows roll's sampled value
+    cfg = compose([*spec.base, "reward.terms.roll.params.deadband_deg=7.5"])
+    assert cfg.reward.terms.pitch.params.deadband_deg == 7.5
+    assert validate(cfg, ["reward"])["reward"].terms["pitch"].params["deadband_deg"] == 7.5  # as the runner sees it
+
+
+@pytest.mark.parametrize(
+    ("name", "keys"),
+    [
+        ("ppo", {"algo.learning_rate", "algo.n_steps", "algo.batch_size", "algo.gamma", "algo.ent_coef"}),
+        ("sac", {"algo.learning_rate", "algo.batch_size", "algo.tau", "algo.gamma", "algo.train_freq"}),
+    ],
+)
+def test_algorithm_sweeps_name_their_hyperparameters_and_compose(name, keys):
+    spec = load_spec(name)
+    assert {p.key for p in spec.params} == keys
+    assert spec.metric in ("spl", "success_rate") and spec.n_trials > 0 and spec.timesteps and spec.eval_episodes
+    low = [p.override(p.low_value()) for p in spec.params]
+    cfg = compose([*spec.base, *low])
+    assert cfg.algo.name == name
+    assert next(p for p in spec.params if p.key == "algo.learning_rate").distribution.log
+
+
+def test_every_shipped_sweep_loads():
+    assert {p.stem for p in SWEEPS_DIR.glob("*.yaml")} >= {"reward_shaping", "ppo", "sac"}
+    for path in SWEEPS_DIR.glob("*.yaml"):
+        assert load_spec(path.stem).params
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "message"),
+    [
+        (
+            "params:\n  a.b: interval(0, 1)\n  c.d: interval(5, 1)\n",
+            3,
+            "params.c.d: interval(5.0, 1.0) needs low < high",
+        ),
+        ("params:\n  a.b: tag(log, interval(0, 1))\n", 2, "low > 0"),
+        ("params:\n  a.b: choice(1,\n", 2, "cannot parse 'a.b=choice(1,'"),
+        ("params:\n  a.b: [1,\n", None, "not valid YAML"),
+        ("objective:\n  metric: reward\nparams:\n  a.b: interval(0, 1)\n", 2, "unknown metric 'reward'"),
+        ("budget:\n  n_trial: 3\nparams:\n  a.b: interval(0, 1)\n", 2, "budget.n_trial: unknown key"),
+        ("budget:\n  n_trials: -1\nparams:\n  a.b: interval(0, 1)\n", 2, "expected a positive integer"),
+        ("bases: [world=flat]\nparams:\n  a.b: interval(0, 1)\n", 1, "bases: unknown section"),
+        ("base:\n  - world=flat\n  - worldflat\nparams:\n  a.b: interval(0, 1)\n", 3, "base[1]: expected an override"),
+        ("params:\n  a.b: 3\n", 1, "no searched key"),
+    ],
+)
+def test_mistakes_name_the_file_and_line(tmp_path, text, line, message):
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError) as info:
+        load_spec(str(path))
+    err = str(info.value)
+    assert message in err
+    assert "bad.yaml" in err
+    if line is not None:
+        assert f"bad.yaml:{line}:" in err
+
+
+def test_unknown_sweep_name_is_a_clear_error_with_exit_2(tmp_path, capsys):
+    code = run_in_process(["sweep=no_such_sweep", f"hydra.run.dir={tmp_path}/out", f"sweep.storage={tmp_path}/j"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "unknown sweep" in err and "reward_shaping" in err and "Traceback" not in err
+    assert not (tmp_path / "j").exists()
+
+
+def test_searched_key_missing_from_the_config_names_its_line(tmp_path, capsys):
+    path = write_sweep(
+        tmp_path, params={"algo.learning_rate": "interval(1e-4, 1e-3)", "algo.lerning_rate": "interval(0, 1)"}
+    )
+    code = run_in_process(sweep_args(tmp_path, path))
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = path.read_text().splitlines()
+    lineno = next(i + 1 for i, text in enumerate(lines) if "lerning" in text)
+    assert f"tiny.yaml:{lineno}: params.algo.lerning_rate: no such key" in err
+    assert not (tmp_path / "optuna.journal").exists()  # nothing created before the checks pass
+
+
+def test_low_end_the_schema_rejects_names_its_line(tmp_path, capsys):
+    path = write_sweep(tmp_path, params={"algo.learning_rate": "interval(0, 1e-3)"})
+    code = run_in_process(sweep_args(tmp_path, path))
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "algo.learning_rate: expected a positive number" in err and "tiny.yaml:" in err
+
+
+@pytest.mark.parametrize("name", ["reward_shaping", "ppo", "sac"])
+def test_shipped_sweeps_pass_the_start_up_checks(name):
+    from diana_lab.sweeps.runner import _check
+
+    spec = load_spec(name)
+    assert _check(spec, spec.params, ()).enabled  # composes and validates every group at the low ends

@@ -1,0 +1,113 @@
+"""``python -m diana_lab.sweep`` end to end with tiny budgets: trials, nested MLflow runs, resume, failures,
+pruning through the runner's periodic evaluation."""
+
+from __future__ import annotations
+
+import optuna
+from optuna.pruners import BasePruner
+
+from diana_lab.sweeps.mlflow_runs import ParentRun, SweepClient
+from diana_lab.sweeps.objective import Objective, TrialPlan
+from diana_lab.sweeps.spec import load_spec
+
+from .helpers import load_study, mlflow_runs, run_in_process, states, sweep_args, write_sweep
+
+
+def _metric(metrics: dict, key: str) -> float:
+    """An evaluation metric under either naming (``eval_<key>`` or the older ``eval/<key>``)."""
+    return metrics[f"eval_{key}"] if f"eval_{key}" in metrics else metrics[f"eval/{key}"]
+
+
+def test_three_trial_sweep_records_trials_and_nested_runs(tmp_path, capsys):
+    path = write_sweep(tmp_path, n_trials=3)
+    assert run_in_process(sweep_args(tmp_path, path)) == 0
+    out = capsys.readouterr().out
+    study = load_study(tmp_path)
+    assert states(study) == ["COMPLETE"] * 3
+    client, parents, children = mlflow_runs(tmp_path)
+    assert len(parents) == 1 and len(children) == 3
+    parent = parents[0]
+    assert parent.info.status == "FINISHED"
+    assert parent.data.tags["sweep"] == "tiny" and parent.data.tags["optuna_study"] == "tiny"
+    assert parent.data.tags["optuna_storage"].endswith("optuna.journal")
+    assert study.user_attrs["mlflow_parent_run_id"] == parent.info.run_id
+    by_trial = {int(r.data.tags["optuna_trial"]): r for r in children}
+    assert sorted(by_trial) == [0, 1, 2]
+    for number, run in by_trial.items():
+        trial = study.trials[number]
+        assert run.data.tags["mlflow.parentRunId"] == parent.info.run_id
+        assert run.info.status == "FINISHED" and run.data.tags["optuna_state"] == "COMPLETE"
+        assert float(run.data.params["algo.learning_rate"]) == trial.params["algo.learning_rate"]
+        assert _metric(run.data.metrics, "spl") == trial.value  # the objective is the final evaluation's SPL
+        assert "rollout/ep_rew_mean" in run.data.metrics  # training metrics
+        assert "model/model.zip" in {a.path for a in client.list_artifacts(run.info.run_id, "model")}
+        assert trial.user_attrs["run_ids"] == [run.info.run_id]
+    best = study.best_trial
+    assert parent.data.tags["best_trial"] == str(best.number)
+    assert float(parent.data.tags["best.reward.terms.goal.weight"]) == best.params["reward.terms.goal.weight"]
+    assert parent.data.metrics["best_value"] == best.value
+    study_files = {a.path for a in client.list_artifacts(parent.info.run_id, "study")}
+    assert {"study/trials.csv", "study/best_params.json"} <= study_files
+    plots = {a.path for a in client.list_artifacts(parent.info.run_id, "plots")}
+    assert "plots/optimization_history.html" in plots and "plots/parallel_coordinate.html" in plots
+    assert "reproduce:" in out and f"reward.terms.goal.weight={best.params['reward.terms.goal.weight']!r}" in out
+    assert "python -m diana_lab world=flat" in out and "optuna-dashboard" in out
+
+
+def test_rerun_continues_the_study_and_its_mlflow_run(tmp_path):
+    path = write_sweep(tmp_path, n_trials=1)
+    assert run_in_process(sweep_args(tmp_path, path)) == 0
+    _, (parent,), _ = mlflow_runs(tmp_path)
+    # the same command with a larger budget tops the study up to it, under the same MLflow run
+    assert run_in_process(sweep_args(tmp_path, path, "sweep.n_trials=2", out="again")) == 0
+    assert states(load_study(tmp_path)) == ["COMPLETE"] * 2
+    _, parents, children = mlflow_runs(tmp_path)
+    assert [p.info.run_id for p in parents] == [parent.info.run_id] and len(children) == 2
+    assert parents[0].info.status == "FINISHED"
+    # once the budget is spent, rerunning runs nothing more
+    assert run_in_process(sweep_args(tmp_path, path, "sweep.n_trials=2", out="done")) == 0
+    assert len(load_study(tmp_path).trials) == 2
+
+
+def test_failing_trial_is_recorded_and_the_study_goes_on(tmp_path):
+    marker = tmp_path / "failed_once"
+    boom = ["reward.terms.step.fn=tests.sweep.helpers.fail_once", f"+reward.terms.step.params.marker='{marker}'"]
+    path = write_sweep(tmp_path, n_trials=2, extra_base=boom)
+    assert run_in_process(sweep_args(tmp_path, path)) == 0
+    study = load_study(tmp_path)
+    assert states(study) == ["FAIL", "COMPLETE"]  # a failure counts towards n_trials
+    assert "deliberate failure inside training" in study.trials[0].user_attrs["error"]
+    _, parents, children = mlflow_runs(tmp_path)
+    by_trial = {int(r.data.tags["optuna_trial"]): r.info.status for r in children}
+    assert by_trial == {0: "FAILED", 1: "FINISHED"}
+    assert parents[0].info.status == "FINISHED"
+
+
+class PruneAll(BasePruner):
+    def prune(self, study, trial) -> bool:
+        return True
+
+
+def test_pruning_stops_training_at_a_periodic_evaluation(tmp_path):
+    spec = load_spec(str(write_sweep(tmp_path, timesteps=512, eval_every=128)))
+    client = SweepClient(f"sqlite:///{tmp_path}/mlflow.db", "diana_lab")
+    parent = ParentRun.open(client, None, "sweep-test", {"sweep": "tiny"})
+    plan = TrialPlan(
+        spec=spec,
+        params=spec.params,
+        cli=(f"tracking.uri=sqlite:///{tmp_path}/mlflow.db",),
+        seeds=(),
+        out_dir=tmp_path / "out",
+        study_name="pruning",
+        parent_run_id=parent.run_id,
+        client=client,
+    )
+    study = optuna.create_study(direction="maximize", pruner=PruneAll())
+    study.optimize(Objective(plan, "test:1:1"), n_trials=1)
+    (trial,) = study.trials
+    assert trial.state == optuna.trial.TrialState.PRUNED
+    assert list(trial.intermediate_values) and max(trial.intermediate_values) < 512  # stopped early
+    _, _, children = mlflow_runs(tmp_path)
+    (run,) = children
+    assert run.info.status == "KILLED" and run.data.tags["optuna_state"] == "PRUNED"
+    assert run.data.tags["mlflow.parentRunId"] == parent.run_id
