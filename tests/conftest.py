@@ -9,14 +9,14 @@ import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-from hypothesis import settings  # noqa: E402
+from hypothesis import settings
 
 # CI runs the same examples every time (reproducible); locally hypothesis explores new ones
 settings.register_profile("ci", derandomize=True, database=None)
 if os.environ.get("CI"):
     settings.load_profile("ci")
 
-from diana_lab.config import build, compose, to_object
+from diana_lab.config import build, compose, to_object  # noqa: E402  (after the environment is set)
 
 
 @pytest.fixture(scope="session")
