@@ -109,7 +109,7 @@ class ElevationMap(CloudEncoder):
         rows, cols, clip = self.rows, self.cols, self.height_clip
         pts = self.visible_rover_points(points)
         if len(pts):
-            pts = pts @ leveling_matrix(roll, pitch).T.astype(np.float32)
+            pts = pts @ leveling_matrix((roll, pitch, 0.0)).T.astype(np.float32)
         pts = self._filter(pts)
         inv = 1.0 / self.cell_size
         row = np.floor((self.extent_forward - pts[:, 0]) * inv).astype(np.int64)

@@ -1,6 +1,7 @@
 """Frames and ray patterns of the trained sensor, in numpy only (no open3d, no gymnasium, no torch).
 
-These mirror :mod:`diana_lab.sensing.transforms`, :func:`diana_lab.sensing.camera.pinhole_pattern` and
+Rotations come from :mod:`diana_lab.rotations` (numpy only, shared with the simulator). These mirror
+:func:`diana_lab.sensing.camera.pinhole_pattern` and
 :func:`diana_lab.sensing.lidar.lidar_pattern` (the tests hold them against each other): the runtime must
 not import :mod:`diana_lab.sensing`, which pulls in open3d and gymnasium at import time.
 
@@ -16,35 +17,11 @@ import math
 import numpy as np
 
 from diana_lab.deploy.spec import SensorSpec
+from diana_lab.rotations import leveling_matrix, pitch_matrix, rpy_matrix
 
 __all__ = ["SensorModel", "leveling_matrix", "optical_to_body", "pitch_matrix", "rpy_matrix"]
 
 RANGE_SLACK = 1e-6  # relative: a return at exactly max_range must survive a float round trip
-
-
-def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
-    """``Rz(yaw) @ Ry(pitch) @ Rx(roll)``: rover frame -> world (same formula as the training code)."""
-    cr, sr = math.cos(roll), math.sin(roll)
-    cp, sp = math.cos(pitch), math.sin(pitch)
-    cy, sy = math.cos(yaw), math.sin(yaw)
-    return np.array(
-        [
-            [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
-            [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
-            [-sp, cp * sr, cp * cr],
-        ]
-    )
-
-
-def pitch_matrix(pitch: float) -> np.ndarray:
-    """``Ry(pitch)``: the mount rotation of a sensor pitched down by ``pitch`` (sensor -> rover)."""
-    c, s = math.cos(pitch), math.sin(pitch)
-    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
-
-
-def leveling_matrix(roll: float, pitch: float) -> np.ndarray:
-    """``Ry(pitch) @ Rx(roll)``: rover frame -> heading frame (the elevation map is built level)."""
-    return rpy_matrix(roll, pitch, 0.0)
 
 
 def optical_to_body(points: np.ndarray) -> np.ndarray:

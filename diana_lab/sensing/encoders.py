@@ -24,8 +24,8 @@ from gymnasium import spaces
 
 from diana_lab.config.sensing import ElevationMapConfig, PointsConfig, SensorConfig
 from diana_lab.config.validation import ConfigError
+from diana_lab.rotations import leveling_matrix
 from diana_lab.sensing.frame import SensorFrame
-from diana_lab.sensing.transforms import leveling_matrix
 
 __all__ = [
     "NO_RETURN",

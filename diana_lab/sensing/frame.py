@@ -11,7 +11,7 @@ from functools import cached_property
 
 import numpy as np
 
-from diana_lab.sensing.transforms import rpy_matrix
+from diana_lab.rotations import rpy_matrix
 
 __all__ = ["SensorFrame"]
 

@@ -17,11 +17,11 @@ import numpy as np
 from gymnasium import spaces
 
 from diana_lab.config.sensing import SensorConfig
+from diana_lab.rotations import pitch_matrix, rpy_matrix
 from diana_lab.sensing.encoders import Encoder, make_encoder
 from diana_lab.sensing.frame import SensorFrame
 from diana_lab.sensing.noise import NoiseModel
 from diana_lab.sensing.raycast import RayCaster
-from diana_lab.sensing.transforms import pitch_matrix, rpy_matrix
 from diana_lab.sim.world import World
 
 __all__ = ["RaySensor"]

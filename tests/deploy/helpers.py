@@ -19,7 +19,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from diana_lab.agents.factory import build_model
 from diana_lab.config import compose, to_object
 from diana_lab.envs.rover_nav import RoverNavEnv
-from diana_lab.sensing.transforms import pitch_matrix
+from diana_lab.rotations import pitch_matrix
 from diana_lab.sim.world import World
 
 SMALL_WORLD = [

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from diana_lab.rotations import leveling_matrix, rpy_matrix
 from diana_lab.sensing.camera import pinhole_pattern
-from diana_lab.sensing.transforms import leveling_matrix, rpy_matrix
 from tests.sensing.conftest import box, make_sensor, plane_world
 
 

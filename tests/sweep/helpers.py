@@ -2,14 +2,14 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import optuna
 import yaml
 from mlflow.tracking import MlflowClient
+
+from tests import entrypoints
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -75,30 +75,11 @@ def sweep_args(tmp: Path, sweep_file: Path, *extra: str, out: str = "out") -> li
 
 def run_in_process(args: list[str]) -> int:
     """``python -m diana_lab.sweep <args>`` in this process; its exit status."""
-    from diana_lab.sweep import main
-
-    saved = sys.argv
-    sys.argv = ["diana_lab.sweep", *args]
-    try:
-        main()
-    except SystemExit as exc:
-        return int(exc.code or 0)
-    finally:
-        sys.argv = saved
-    return 0
+    return entrypoints.run_in_process("diana_lab.sweep", args)
 
 
 def run_subprocess(args: list[str], cwd: Path) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONHASHSEED": "0", "PYTHONPATH": str(ROOT)}
-    env.pop("HYDRA_FULL_ERROR", None)
-    return subprocess.Popen(
-        [sys.executable, "-m", "diana_lab.sweep", *args],
-        cwd=cwd,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        text=True,
-    )
+    return entrypoints.run_subprocess("diana_lab.sweep", args, cwd, stderr=subprocess.STDOUT)
 
 
 def load_study(tmp: Path, name: str = "tiny") -> optuna.Study:

@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 from mlflow.tracking import MlflowClient
+
+from tests import entrypoints
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -49,32 +49,12 @@ def store_args(tmp: Path, run_dir: str = "run") -> list[str]:
 
 
 def run_in_process(args: list[str]) -> int:
-    """Run the Hydra app with ``args`` as its command line; the exit status (0 without ``sys.exit``)."""
-    from diana_lab.__main__ import main
-
-    saved = sys.argv
-    sys.argv = ["diana_lab", *args]
-    try:
-        main()
-    except SystemExit as exc:
-        return int(exc.code or 0)
-    finally:
-        sys.argv = saved
-    return 0
+    """``python -m diana_lab <args>`` in this process; its exit status."""
+    return entrypoints.run_in_process("diana_lab.__main__", args)
 
 
 def run_subprocess(args: list[str], cwd: Path, **kwargs) -> subprocess.Popen:
-    env = {**os.environ, "PYTHONHASHSEED": "0"}
-    env.pop("HYDRA_FULL_ERROR", None)
-    return subprocess.Popen(
-        [sys.executable, "-m", "diana_lab", *args],
-        cwd=cwd,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        **kwargs,
-    )
+    return entrypoints.run_subprocess("diana_lab", args, cwd, **kwargs)
 
 
 def runs(tmp: Path, experiment: str = "diana_lab"):

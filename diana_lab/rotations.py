@@ -1,5 +1,6 @@
 """Rotations of the rover and sensor frames (x forward, y left, z up; ``rpy`` = roll, pitch, yaw, ZYX).
 
+numpy and ``math`` only, so the torch- and open3d-free deployment runtime shares them with the simulator.
 Plain ``math`` on three scalars: a per-frame pose costs a few microseconds instead of the tens that
 ``scipy.spatial.transform.Rotation`` spends on its checks, and the tests hold these against scipy.
 """
