@@ -40,11 +40,7 @@ def env_config(cfg: DictConfig, eval_dynamics: str | None, train_cfg: DictConfig
 
     env_cfg = OmegaConf.masked_copy(
         cfg,
-        [
-            g
-            for g in ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode")
-            if g in cfg
-        ],
+        [g for g in ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode") if g in cfg],
     )
     with open_dict(env_cfg):
         if eval_dynamics is not None:
@@ -87,12 +83,10 @@ def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg))
     try:
         if loaded.model is not None:
-            check_observation_space(
-                loaded.model.observation_space,
-                env.observation_space,
-                loaded.label,
-                config_differences(loaded.train_cfg, cfg),
-            )
+            hints = config_differences(loaded.train_cfg, cfg)
+            if loaded.label == "pretrained":
+                hints = ["add +experiment=reference (the shipped policy's training preset)", *hints]
+            check_observation_space(loaded.model.observation_space, env.observation_space, loaded.label, hints)
         if eval_cfg.sensor_noise:
             levels = sweep_sensor_noise(loaded.policy, env, eval_cfg, out_dir)
             summaries = {f"{level:g}": s for level, s in levels.items()}

@@ -25,9 +25,7 @@ class EvalConfig:
     every: int = 10000  # training steps between periodic evaluations (the runner); 0 disables them
     deterministic: bool = True  # RL policies act with their mean/mode action
     dynamics: str | None = None  # None: the same dynamics as training; else "kinematic" or "physics"
-    sensor_noise: list[float] = field(
-        default_factory=list
-    )  # noise levels to sweep; []: the configured sensor
+    sensor_noise: list[float] = field(default_factory=list)  # noise levels to sweep; []: the configured sensor
     video: bool = True  # a GIF of the first episode
     plots: bool = True  # trajectory and tilt plots
 

@@ -233,6 +233,46 @@ class TD3Config(DDPGConfig):
 # ----------------------------------------------------------------------------------------------- train
 
 
+EXPERTS = ("astar",)
+
+
+@dataclass
+class ImitationConfig:
+    """DAgger from the planner oracle before reinforcement learning (:mod:`diana_lab.training.imitation`).
+
+    Why: from scratch, PPO spends most of a CPU budget learning that steep ground tips the rover over. The
+    receding-horizon A* oracle knows the map and labels every state the learner visits; imitating it gives
+    the RL stage a policy that already avoids hazards, which RL then adapts to what the sensor can see.
+    Iteration ``k`` executes the expert's action with probability ``beta * beta_decay**k`` (``k = 0``:
+    plain behaviour cloning), the learner's otherwise, and trains on every label gathered so far.
+    """
+
+    enabled: bool = False
+    expert: str = "astar"  # the receding-horizon A* oracle (privileged: it sees the whole cost map)
+    iterations: int = 6
+    steps_per_iteration: int = 8192  # env steps per iteration, over all training envs
+    beta: float = 1.0
+    beta_decay: float = 0.5
+    epochs: int = 4  # passes over the aggregated data per iteration
+    batch_size: int = 256
+    learning_rate: float = 1.0e-3
+    # Gaussian policies only (PPO/A2C): the log std set after imitation, so RL starts near the imitated policy
+    log_std: float | None = -1.5
+
+    def __post_init__(self) -> None:
+        key = "train.imitation"
+        one_of(f"{key}.expert", self.expert, EXPERTS)
+        _positive_int(f"{key}.iterations", self.iterations)
+        _positive_int(f"{key}.steps_per_iteration", self.steps_per_iteration)
+        in_range(f"{key}.beta", self.beta, 0.0, 1.0)
+        in_range(f"{key}.beta_decay", self.beta_decay, 0.0, 1.0)
+        _positive_int(f"{key}.epochs", self.epochs)
+        _positive_int(f"{key}.batch_size", self.batch_size)
+        positive(f"{key}.learning_rate", self.learning_rate)
+        if self.log_std is not None:
+            in_range(f"{key}.log_std", self.log_std, -5.0, 2.0)
+
+
 @dataclass
 class TrainConfig:
     """How long and how parallel to train, and when to checkpoint."""
@@ -249,6 +289,7 @@ class TrainConfig:
     # 1: these networks are tiny, and a second OpenMP thread spin-waits against the env for the same cores
     # (a 16 x 12 convolution: 10 ms with 2 threads, 0.06 ms with 1, on a 2-core machine). 0: torch's default
     torch_threads: int = 1
+    imitation: ImitationConfig = field(default_factory=ImitationConfig)
 
     def __post_init__(self) -> None:
         _positive_int("train.total_timesteps", self.total_timesteps)

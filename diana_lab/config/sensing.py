@@ -59,8 +59,7 @@ class ElevationMapConfig:
         rows, cols = self.shape
         if rows * cols > 512 * 512:
             raise ConfigError(
-                f"{key}.cell_size: {self.cell_size} gives a {rows} x {cols} grid; expected at "
-                f"most 512 x 512 cells"
+                f"{key}.cell_size: {self.cell_size} gives a {rows} x {cols} grid; expected at most 512 x 512 cells"
             )
 
     @property
@@ -145,8 +144,7 @@ class DepthCameraConfig(SensorConfig):
         in_range("sensor.vfov_deg", self.vfov_deg, 0.0, 180.0, inclusive=False)
         if self.width * self.height > MAX_RAYS:
             raise ConfigError(
-                f"sensor.width x sensor.height: expected at most {MAX_RAYS} pixels, got "
-                f"{self.width} x {self.height}"
+                f"sensor.width x sensor.height: expected at most {MAX_RAYS} pixels, got {self.width} x {self.height}"
             )
 
 

@@ -44,9 +44,7 @@ class FlatConfig(WorldConfig):
         positive("world.size_y", self.size_y)
         positive("world.resolution", self.resolution)
         if self.resolution > min(self.size_x, self.size_y) / 2:
-            raise ConfigError(
-                f"world.resolution: expected at most half the world size, got {self.resolution}"
-            )
+            raise ConfigError(f"world.resolution: expected at most half the world size, got {self.resolution}")
 
 
 @dataclass
@@ -82,9 +80,7 @@ class CratersConfig(FlatConfig):
         super().__post_init__()
         non_negative("world.n_craters", self.n_craters)
         positive("world.crater_radius[0]", self.crater_radius[0])
-        ordered(
-            "world.crater_radius[0]", self.crater_radius[0], "world.crater_radius[1]", self.crater_radius[1]
-        )
+        ordered("world.crater_radius[0]", self.crater_radius[0], "world.crater_radius[1]", self.crater_radius[1])
         non_negative("world.dune_amplitude", self.dune_amplitude)
         positive("world.dune_wavelength", self.dune_wavelength)
         in_range("world.rock_density", self.rock_density, 0.0, 1.0)
@@ -160,9 +156,7 @@ class RobotConfig:
         in_range("robot.tipover_deg", self.tipover_deg, 1.0, 89.0)
         in_range("robot.max_slope_deg", self.max_slope_deg, 1.0, 89.0)
         if not self.wheel_joints_left or not self.wheel_joints_right:
-            raise ConfigError(
-                "robot.wheel_joints_left / wheel_joints_right: expected at least one joint per side"
-            )
+            raise ConfigError("robot.wheel_joints_left / wheel_joints_right: expected at least one joint per side")
         if len(self.axle_x) < 2:
             raise ConfigError(f"robot.axle_x: expected at least two axle positions, got {list(self.axle_x)}")
 

@@ -69,22 +69,26 @@ class WaypointMapping:
         a = np.asarray(action, dtype=np.float64)
         if a.shape != (2,):
             raise ActionError(f"action: expected shape (2,), got {a.shape}")
-        if not np.all(np.isfinite(a)):
+        x, y = a.tolist()  # two numbers: math and min/max cost a fraction of np.isfinite and np.clip
+        if not (math.isfinite(x) and math.isfinite(y)):
             raise ActionError(f"action: expected finite values in [-1, 1], got {a.tolist()}")
-        return np.clip(a, -1.0, 1.0)
+        return np.array([min(max(x, -1.0), 1.0), min(max(y, -1.0), 1.0)])
 
     def offset(self, action: np.ndarray, yaw: float) -> np.ndarray:
         """World-frame offset from the rover to the waypoint."""
         a = self.check(action)
-        local = (square_to_disc(a) if self.cfg.shape == "circle" else a) * self.extent
-        if self.cfg.min_distance > 0:
-            norm = float(np.hypot(*local))
-            if norm < self.cfg.min_distance:
-                local = (local / norm if norm > 1e-9 else np.array([1.0, 0.0])) * self.cfg.min_distance
+        if self.cfg.shape == "circle":
+            a = square_to_disc(a)
+        x, y = a[0] * self.extent, a[1] * self.extent  # on scalars: one waypoint per env step
+        d = self.cfg.min_distance
+        if d > 0:
+            norm = float(np.hypot(x, y))
+            if norm < d:
+                x, y = (x / norm * d, y / norm * d) if norm > 1e-9 else (d, 0.0)
         if self.cfg.frame == "rover":
             c, s = math.cos(yaw), math.sin(yaw)
-            local = np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
-        return local
+            x, y = c * x - s * y, s * x + c * y
+        return np.array([x, y], dtype=np.float64)
 
     def action_for(self, offset: np.ndarray, yaw: float) -> np.ndarray:
         """The action whose waypoint is ``offset`` away from the rover (clipped to the shape)."""

@@ -20,6 +20,7 @@ from diana_lab.planning import CostMap, shared_costmap
 from diana_lab.sim.world import World
 
 MAX_TRIES = 64
+SQUARED_MARGIN = 1e-9  # relative: squared distances this close to a limit are settled by hypot
 
 
 @dataclass(frozen=True)
@@ -44,7 +45,10 @@ class EpisodeSampler:
         # the env clamps waypoints this far inside the map: a goal beyond it could never be reached
         inside = world.terrain.contains(x, y, margin=robot.radius + cfg.map_margin)
         self._xy = np.column_stack([x, y])[inside]
+        self._x, self._y = self._xy[:, 0].copy(), self._xy[:, 1].copy()
         self._label = labels[iy, ix][inside]
+        self._scratch: tuple[np.ndarray, ...] | None = None  # per-cell work buffers of sample(), made on first use
+        self._in_region: dict[int, np.ndarray] = {}  # label -> bool mask of its cells, for the regions drawn from
         if self._label.size == 0:
             raise ConfigError(
                 f"episode.map_margin: no traversable cell of world '{world.name}' lies "
@@ -71,8 +75,7 @@ class EpisodeSampler:
         for _ in range(MAX_TRIES):
             i = int(self._start_pool[rng.integers(len(self._start_pool))])
             start = self._xy[i]
-            d = np.hypot(*(self._xy - start).T)
-            candidates = np.flatnonzero((self._label == self._label[i]) & (d >= lo) & (d <= hi))
+            candidates = np.flatnonzero(self._reachable(i, lo, hi))
             if candidates.size:
                 goal = self._xy[candidates[rng.integers(candidates.size)]]
                 self.episodes_drawn += 1
@@ -82,6 +85,46 @@ class EpisodeSampler:
             f"traversable region of world '{self.world.name}' after {MAX_TRIES} tries; "
             "lower the distances or use a larger world"
         )
+
+    def _reachable(self, i: int, lo: float, hi: float) -> np.ndarray:
+        """Cells in the region of cell ``i`` whose distance ``hypot(dx, dy)`` from it is in ``[lo, hi]``: a bool
+        mask, which the next call overwrites.
+
+        Squared distances settle every cell but those within a relative :data:`SQUARED_MARGIN` of a limit,
+        where ``hypot`` settles it: a multiply-add costs a fraction of a ``hypot``, and rounding errors (~1e-16)
+        come nowhere near the margin, so the cells are the same as testing ``hypot`` everywhere. Everything is
+        written into buffers kept between calls: fresh temporaries of this size (tens of thousands of cells)
+        cost more to page in than the arithmetic does.
+        """
+        if self._scratch is None:
+            n = len(self._xy)
+            self._scratch = (np.empty(n), np.empty(n), *(np.empty(n, dtype=bool) for _ in range(3)))
+        r2, dy2, ok, maybe, test = self._scratch
+        x, y = self._x[i], self._y[i]
+        np.subtract(self._x, x, out=r2)
+        np.subtract(self._y, y, out=dy2)
+        r2 *= r2
+        r2 += np.multiply(dy2, dy2, out=dy2)
+        lo2 = max(lo, 0.0) ** 2  # a negative minimum is no limit; NaN stays NaN (and admits nothing)
+        hi2 = hi * hi if hi >= 0.0 else -1.0  # a negative maximum (or NaN) admits nothing
+        np.greater_equal(r2, lo2 * (1.0 + SQUARED_MARGIN), out=ok)  # surely inside
+        ok &= np.less_equal(r2, hi2 * (1.0 - SQUARED_MARGIN), out=test)
+        np.greater_equal(r2, lo2 * (1.0 - SQUARED_MARGIN), out=maybe)  # possibly inside
+        maybe &= np.less_equal(r2, hi2 * (1.0 + SQUARED_MARGIN), out=test)
+        near_limit = np.flatnonzero(np.logical_xor(maybe, ok, out=maybe))
+        if near_limit.size:
+            d = np.hypot(self._x[near_limit] - x, self._y[near_limit] - y)
+            ok[near_limit] = (d >= lo) & (d <= hi)
+        label = int(self._label[i])
+        if label not in self._in_region:
+            self._in_region[label] = self._label == label
+        ok &= self._in_region[label]
+        return ok
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_scratch"], state["_in_region"] = None, {}  # rebuilt on use: no need to pickle megabytes
+        return state
 
     def check_point(self, xy: np.ndarray, what: str) -> None:
         """Fixed episodes (``reset(options=...)``) must lie on the map."""

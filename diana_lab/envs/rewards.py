@@ -46,7 +46,7 @@ def heading(ctx: RewardContext) -> float:
 def _tilt_penalty(angles: np.ndarray, deadband_deg: float, power: float) -> float:
     if len(angles) == 0:
         return 0.0
-    excess = max(float(np.max(np.abs(angles))) - math.radians(deadband_deg), 0.0)
+    excess = max(float(np.abs(angles).max()) - math.radians(deadband_deg), 0.0)
     return -(excess**power)
 
 

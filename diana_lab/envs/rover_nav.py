@@ -105,6 +105,12 @@ class RoverNavEnv(gym.Env):
         )
         self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
         self._episode: Episode | None = None
+        # per-env constants of the step path (looked up once: the step runs ~1,000 times a second)
+        self._goal_low = goal_low.astype(np.float64)
+        self._goal_high = goal_high.astype(np.float64)
+        margin = self.robot.radius + self.episode_cfg.map_margin
+        x0, x1, y0, y1 = self.world.bounds
+        self._waypoint_box = (x0 + margin, x1 - margin, y0 + margin, y1 - margin)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -118,8 +124,9 @@ class RoverNavEnv(gym.Env):
         return self._estimate
 
     def _goal_vector(self, est: PoseEstimate) -> tuple[np.ndarray, float, float]:
-        dx, dy = self.goal - est.xy
-        distance = float(math.hypot(dx, dy))
+        goal = self.goal
+        dx, dy = float(goal[0] - est.xy[0]), float(goal[1] - est.xy[1])
+        distance = math.hypot(dx, dy)
         error = float(wrap_angle(math.atan2(dy, dx) - est.yaw))
         g = np.array(
             [
@@ -132,8 +139,8 @@ class RoverNavEnv(gym.Env):
                 math.cos(est.yaw),
             ]
         )
-        space = self.observation_space["goal"]
-        return np.clip(g, space.low, space.high).astype(np.float32), distance, error
+        np.minimum(np.maximum(g, self._goal_low, out=g), self._goal_high, out=g)  # np.clip, minus its wrapper
+        return g.astype(np.float32), distance, error
 
     def _observe(self) -> dict[str, np.ndarray]:
         st = self.dynamics.state
@@ -142,10 +149,9 @@ class RoverNavEnv(gym.Env):
         return {"goal": goal, self.sensor_key: self.sensor.observe(st.position, st.rpy)}
 
     def _clamp(self, waypoint: np.ndarray) -> np.ndarray:
-        margin = self.robot.radius + self.episode_cfg.map_margin
-        x0, x1, y0, y1 = self.world.bounds
+        x0, x1, y0, y1 = self._waypoint_box  # the map, shrunk by the rover's radius and the margin
         x, y = float(waypoint[0]), float(waypoint[1])  # scalar min/max: np.clip costs ~10 us per call here
-        return np.array([min(max(x, x0 + margin), x1 - margin), min(max(y, y0 + margin), y1 - margin)])
+        return np.array([min(max(x, x0), x1), min(max(y, y0), y1)])
 
     # ------------------------------------------------------------------ gymnasium API
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
@@ -167,7 +173,7 @@ class RoverNavEnv(gym.Env):
         self.dynamics.reset(ep.start, ep.yaw, self.np_random)
         self._steps, self._path_length, self._max_tilt, self._time_over_tilt = 0, 0.0, 0.0, 0.0
         self._recent_xy = [self.dynamics.state.xy.copy()]
-        self._trail = [self.dynamics.state.xy.copy()]
+        self._trail = [self.dynamics.state.xy[None].copy()]  # (K, 2) pieces, joined by the trail property
         obs = self._observe()
         self._start_distance = self._distance
         return obs, self._info(None, None, None, {})
@@ -181,10 +187,11 @@ class RoverNavEnv(gym.Env):
         result = self.dynamics.execute(waypoint, self.controller, self.pose_service.xy_yaw)
         self._steps += 1
         self._path_length += result.path_length
-        self._max_tilt = max(self._max_tilt, result.max_tilt_deg)
-        if result.max_tilt_deg > TILT_LIMIT_DEG:
-            self._time_over_tilt += float(np.sum(result.sample_durations()[result.trace_tilt_deg > TILT_LIMIT_DEG]))
-        self._trail.extend(result.trace_xy[1:])
+        max_tilt = result.max_tilt_deg
+        self._max_tilt = max(self._max_tilt, max_tilt)
+        if max_tilt > TILT_LIMIT_DEG:
+            self._time_over_tilt += float(result.sample_durations()[result.trace_tilt_deg > TILT_LIMIT_DEG].sum())
+        self._trail.append(result.trace_xy[1:])
         obs = self._observe()
         outcome = self._outcome(result)
         terminated = outcome is not None and outcome not in ("timeout", "stuck")
@@ -198,7 +205,8 @@ class RoverNavEnv(gym.Env):
 
     def _outcome(self, result: WaypointResult) -> str | None:
         # success counts if the rover passed within tolerance anywhere along the step (before any failure)
-        if np.min(np.hypot(*(result.trace_xy - self.goal).T)) <= self.episode_cfg.goal_tolerance:
+        offset = result.trace_xy - self.goal
+        if np.hypot(offset[:, 0], offset[:, 1]).min() <= self.episode_cfg.goal_tolerance:
             return "success"
         if result.outcome in TERMINAL:
             return result.outcome
@@ -219,6 +227,7 @@ class RoverNavEnv(gym.Env):
         terms: dict[str, float],
     ) -> dict[str, Any]:
         st = self.dynamics.state
+        tilt = st.tilt_deg
         info: dict[str, Any] = {
             "start": self._episode.start.copy(),
             "goal": self._episode.goal.copy(),
@@ -229,10 +238,10 @@ class RoverNavEnv(gym.Env):
             "steps": self._steps,
             "sim_time": st.time,
             "path_length": self._path_length,
-            "tilt_deg": st.tilt_deg,
+            "tilt_deg": tilt,
             "roll_deg": math.degrees(st.rpy[0]),
             "pitch_deg": math.degrees(st.rpy[1]),
-            "max_tilt_deg": max(self._max_tilt, st.tilt_deg),
+            "max_tilt_deg": max(self._max_tilt, tilt),
             "time_over_15deg_s": self._time_over_tilt,
             "reward_terms": terms,
         }
@@ -263,7 +272,7 @@ class RoverNavEnv(gym.Env):
     @property
     def trail(self) -> np.ndarray:
         """The driven path of the current episode, (K, 2)."""
-        return np.asarray(self._trail)
+        return np.concatenate(self._trail)
 
     def close(self) -> None:
         if self._renderer is not None:

@@ -2,12 +2,15 @@
 
 Accepted values:
 
-* ``straight`` / ``astar`` -- the classical baselines;
+* ``straight`` / ``astar`` / ``astar_receding`` / ``astar_local`` / ``astar_cone`` (``_memory``) -- the classical
+  baselines (:mod:`diana_lab.evaluation.oracle`);
 * a path to a Stable-Baselines3 ``.zip`` (or a folder holding ``model.zip``); a ``vecnormalize.pkl`` beside
   it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
 * an MLflow run id (32 hex digits) of a training run, whose artefacts ``model/model.zip``,
   ``model/vecnormalize.pkl`` and ``.hydra/config.yaml`` are downloaded (the layout the runner logs);
-* ``pretrained`` -- the reference policy shipped in ``diana_lab/assets/policies/reference/``.
+* ``pretrained`` -- the reference policy shipped in ``diana_lab/assets/policies/reference/`` (``model.zip``,
+  its training config ``config.yaml`` and ``card.json``); evaluate it with ``+experiment=reference``, the
+  preset it was trained with, so the env gives the observations it expects.
 
 A model whose observation space differs from the env's (another sensor, encoding or resolution) is refused
 with a message naming the key and both shapes, and -- when the training config is known -- the config keys
@@ -21,6 +24,7 @@ import json
 import re
 import tempfile
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -33,7 +37,7 @@ from diana_lab.config import ConfigError
 from diana_lab.evaluation.oracle import AStarOracle
 from diana_lab.evaluation.policies import Policy, SB3Policy, StraightLine
 
-__all__ = ["PRETRAINED_DIR", "LoadedPolicy", "check_observation_space", "load_policy", "load_sb3"]
+__all__ = ["BASELINES", "PRETRAINED_DIR", "LoadedPolicy", "check_observation_space", "load_policy", "load_sb3"]
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "assets" / "policies" / "reference"
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -141,6 +145,7 @@ def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: st
                 model_zip.parent / CONFIG_ARTIFACT,
                 model_zip.parent.parent / CONFIG_ARTIFACT,
                 root / CONFIG_ARTIFACT,
+                root / "config.yaml",  # the shipped reference policy (no hidden folders in package data)
             )
             if p.is_file()
         ),
@@ -184,19 +189,31 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
 
 
+# the classical baselines by name (knowledge 8 m: the elevation map's reach; 100 deg: the depth camera's cone)
+BASELINES: dict[str, Callable[[], Policy]] = {
+    "straight": StraightLine,
+    "astar": AStarOracle,
+    "astar_receding": lambda: AStarOracle(receding=True, spacing=0.8),
+    "astar_local": lambda: AStarOracle(spacing=0.8, knowledge_radius=8.0),
+    "astar_cone": lambda: AStarOracle(spacing=0.8, knowledge_radius=8.0, knowledge_fov_deg=100.0),
+    "astar_local_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=8.0, knowledge_memory=True),
+    "astar_cone_memory": lambda: AStarOracle(
+        spacing=0.8, knowledge_radius=8.0, knowledge_fov_deg=100.0, knowledge_memory=True
+    ),
+}
+
+
 def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     """The policy named by ``spec`` (see the module docstring); user mistakes raise :class:`UserError`."""
     spec = str(spec).strip()
-    if spec == "straight":
-        return LoadedPolicy(StraightLine(), "straight")
-    if spec == "astar":
-        return LoadedPolicy(AStarOracle(), "astar")
+    if spec in BASELINES:
+        return LoadedPolicy(BASELINES[spec](), spec)
     if spec == "pretrained":
         model_zip = PRETRAINED_DIR / "model.zip"
         if not model_zip.is_file():
             raise UserError(
                 f"policy=pretrained: the reference policy is not shipped yet (expected '{model_zip}'). "
-                "Use policy=straight or policy=astar, a model file (policy=path/to/model.zip) or the "
+                f"Use a baseline ({', '.join(BASELINES)}), a model file (policy=path/to/model.zip) or the "
                 "MLflow run id of a training run."
             )
         return _from_dir(PRETRAINED_DIR, model_zip, eval_cfg, "pretrained")
@@ -208,9 +225,9 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     if RUN_ID.match(spec):
         return _from_run(spec, cfg, eval_cfg)
     raise UserError(
-        f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected 'straight', "
-        "'astar', 'pretrained', the path of a Stable-Baselines3 .zip (with vecnormalize.pkl beside "
-        "it if the run normalised observations) or an MLflow run id (32 hex digits)."
+        f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected a baseline "
+        f"({', '.join(BASELINES)}), 'pretrained', the path of a Stable-Baselines3 .zip (with vecnormalize.pkl "
+        "beside it if the run normalised observations) or an MLflow run id (32 hex digits)."
     )
 
 

@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from diana_lab.config.sim import RobotConfig
-from diana_lab.planning import CostMap, plan, simplify
+from diana_lab.planning import CostMap, next_waypoint, plan, simplify
 from diana_lab.sim.world import World
 
 __all__ = ["AStarOracle", "oracle_costmaps", "wheel_pitch_deg"]
@@ -116,6 +116,17 @@ class AStarOracle:
         margin: drift allowance (m) around steep cells, see :func:`oracle_costmaps`.
         obstacle_margin: clearance (m) kept beyond the planner's obstacle band, see :func:`oracle_costmaps`.
         plain: plan on the sampler's cost map only (no wheel-pitch layer): the planner's own view.
+        receding: choose every waypoint afresh from wherever the rover is, by a one-step look-ahead on
+            the cost-to-go from the goal (:func:`~diana_lab.planning.next_waypoint`, one search per episode),
+            instead of following one plan. The expert that labels a learner's states for imitation
+            (:mod:`diana_lab.training.imitation`) must be this: its answer may depend only on the state.
+        knowledge_radius: if set (m), the oracle knows the cost maps only this far around the rover and
+            takes every other traversable cell as the cheapest ground (implies ``receding``, with one search
+            per step). With ``knowledge_fov_deg`` it knows only a cone ahead (plus a 1 m disc), like a
+            forward camera. Without ``knowledge_memory`` it forgets what it saw at the last step: the bound
+            of what a policy that sees only its current frame can reach (``policy=astar_local`` /
+            ``astar_cone``); with it, it keeps a map of everything seen in the episode
+            (``astar_local_memory`` / ``astar_cone_memory``).
     """
 
     name = "astar"
@@ -128,9 +139,21 @@ class AStarOracle:
         obstacle_margin: float = 0.3,
         snap: float = 1.0,
         plain: bool = False,
+        receding: bool = False,
+        knowledge_radius: float | None = None,
+        knowledge_fov_deg: float | None = None,
+        knowledge_memory: bool = False,
     ) -> None:
         if not 0.0 < spacing <= 1.0:
             raise ValueError(f"AStarOracle.spacing: expected a fraction in (0, 1], got {spacing!r}")
+        if knowledge_radius is not None and not knowledge_radius > 0.0:
+            raise ValueError(f"AStarOracle.knowledge_radius: expected a positive radius (m), got {knowledge_radius!r}")
+        if knowledge_fov_deg is not None and not 0.0 < knowledge_fov_deg <= 360.0:
+            raise ValueError(f"AStarOracle.knowledge_fov_deg: expected (0, 360], got {knowledge_fov_deg!r}")
+        self.knowledge_radius, self.knowledge_fov_deg = knowledge_radius, knowledge_fov_deg
+        self.knowledge_memory = knowledge_memory
+        self._seen: np.ndarray | None = None
+        self.receding = receding or knowledge_radius is not None
         self.spacing, self.replan_distance, self.snap, self.plain = spacing, replan_distance, snap, plain
         self.margin, self.obstacle_margin = margin, obstacle_margin
         self._maps: dict[int, tuple[CostMap, ...]] = {}
@@ -155,28 +178,58 @@ class AStarOracle:
                 )
         return self._maps[key]
 
+    def _known(self, env: gym.Env, maps: tuple[CostMap, ...]) -> tuple[CostMap, ...]:
+        """``maps`` as far as the rover knows them (see ``knowledge_radius``): unknown cells cost the least."""
+        if self.knowledge_radius is None:
+            return maps
+        est = env.unwrapped.pose_estimate
+        ny, nx = maps[0].shape
+        cx, cy = maps[0].cell_to_world(np.arange(nx), np.arange(ny))
+        dx, dy = cx[None, :] - est.xy[0], cy[:, None] - est.xy[1]
+        dist = np.hypot(dx, dy)
+        known = dist <= self.knowledge_radius
+        if self.knowledge_fov_deg is not None and self.knowledge_fov_deg < 360.0:
+            bearing = np.angle(np.exp(1j * (np.arctan2(dy, dx) - est.yaw)))
+            known &= (np.abs(bearing) <= math.radians(self.knowledge_fov_deg) / 2.0) | (dist <= 1.0)
+        if self.knowledge_memory:  # a map built over the episode: everything seen so far stays known
+            self._seen = known if self._seen is None or self._seen.shape != known.shape else self._seen | known
+            known = self._seen
+        out = []
+        for cm in maps:
+            cheapest = float(np.min(cm.cost[np.isfinite(cm.cost)], initial=1.0))
+            cost = np.where(known, cm.cost, cheapest)  # nothing beyond the horizon, not even obstacles
+            out.append(CostMap(cost=cost, resolution=cm.resolution, x_min=cm.x_min, y_min=cm.y_min, layers={}))
+        return tuple(out)
+
     def _plan(self, env: gym.Env, start: np.ndarray) -> None:
         base = env.unwrapped
-        path = None
-        for cm in self.costmaps(env):
-            path = plan(cm, start, base.goal, weighted=True, snap=self.snap)
-            if path is not None:
-                break
-        if path is None:  # nowhere to go from here (e.g. pushed off the region): head for the goal
-            self.waypoints = np.asarray(base.goal, dtype=np.float64)[None, :]
-        else:
-            self.waypoints = simplify(path, self.spacing * base.mapping.extent)
+        reach = self.spacing * base.mapping.extent
+        self.waypoints = np.asarray(base.goal, dtype=np.float64)[None, :]  # if nothing else: head for the goal
+        for cm in self._known(env, self.costmaps(env)):
+            if self.receding:
+                wp = next_waypoint(cm, start, base.goal, reach, weighted=True, snap=self.snap)
+                if wp is not None:
+                    self.waypoints = wp[None, :]
+                    break
+            else:
+                path = plan(cm, start, base.goal, weighted=True, snap=self.snap)
+                if path is not None:
+                    self.waypoints = simplify(path, reach)
+                    break
         self._next, self._sent = 0, None
 
     def reset(self, env: gym.Env) -> None:
         self.replans = 0
+        self._seen = None
         self._plan(env, env.unwrapped.pose_estimate.xy)
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
         from diana_lab.evaluation.policies import waypoint_action
 
         xy = env.unwrapped.pose_estimate.xy
-        if self._sent is not None:
+        if self.receding and self._sent is not None:
+            self._plan(env, xy)
+        elif self._sent is not None:
             if math.dist(xy, self._sent) > self.replan_distance:
                 self.replans += 1
                 self._plan(env, xy)

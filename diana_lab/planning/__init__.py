@@ -6,7 +6,7 @@ Used by the episode sampler (start and goal in one connected component, so a pat
 
 from diana_lab.planning.costmap import CostMap, CostMapConfig, build_costmap, shared_costmap
 from diana_lab.planning.hazards import HazardLayers, terrain_hazards
-from diana_lab.planning.paths import Path, plan, shortest_path_length, simplify
+from diana_lab.planning.paths import Path, next_waypoint, plan, shortest_path_length, simplify
 
 __all__ = [
     "CostMap",
@@ -14,6 +14,7 @@ __all__ = [
     "HazardLayers",
     "Path",
     "build_costmap",
+    "next_waypoint",
     "plan",
     "shared_costmap",
     "shortest_path_length",

@@ -22,6 +22,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -49,8 +50,9 @@ class NoiseParams:
         values["spurious"] = min(values["spurious"], 1.0)
         return dataclasses.replace(self, **values)
 
-    @property
+    @cached_property
     def active(self) -> bool:
+        """Whether any effect is on (cached: the parameters are frozen, and every frame asks)."""
         return any(getattr(self, k) > 0 for k in SCALED)
 
 

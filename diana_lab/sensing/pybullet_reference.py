@@ -29,9 +29,7 @@ BATCH = 16384  # rays per rayTestBatch call (pybullet's MAX_RAY_INTERSECTION_BAT
 class PyBulletRayCaster:
     """A DIRECT PyBullet client holding ``world.scene_mesh`` as one static body."""
 
-    def __init__(
-        self, world: World, terrain: Literal["mesh", "heightfield"] = "mesh", num_threads: int = 1
-    ) -> None:
+    def __init__(self, world: World, terrain: Literal["mesh", "heightfield"] = "mesh", num_threads: int = 1) -> None:
         import pybullet as p
 
         if terrain not in ("mesh", "heightfield"):

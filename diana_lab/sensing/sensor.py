@@ -84,10 +84,11 @@ class RaySensor:
         t = self.caster.cast(position + rotation @ self.mount, rotation)
         if self.noise.active:
             t = self.noise.apply(t)
-        # NaN outside [min_range, max_range]; ``inf`` (no hit) fails the test too, so no fake max-range hit
-        ranges = np.where((t >= self.cfg.min_range) & (t <= self.cfg.max_range), t, np.float32(np.nan))
+        # NaN outside [min_range, max_range], in place (t is this frame's own array); ``inf`` (no hit) is
+        # outside too, so there is no fake max-range hit
+        np.putmask(t, (t < self.cfg.min_range) | (t > self.cfg.max_range), np.float32(np.nan))
         return SensorFrame(
-            ranges.reshape(self.image_shape),
+            t.reshape(self.image_shape),
             position,
             rpy,
             self.caster.directions,

@@ -48,10 +48,7 @@ class TurnThenDrive:
 
     def nominal_time(self, distance: float, heading_error: float) -> float:
         """Time the ideal controller needs: the turn plus the straight drive."""
-        return (
-            abs(heading_error) / self.turn_speed
-            + max(distance - self.position_tolerance, 0.0) / self.cruise_speed
-        )
+        return abs(heading_error) / self.turn_speed + max(distance - self.position_tolerance, 0.0) / self.cruise_speed
 
     def time_limit(self, distance: float, heading_error: float) -> float:
         """When the controller gives up on a waypoint."""

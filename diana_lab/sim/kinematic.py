@@ -28,6 +28,7 @@ from diana_lab.sim.world import World
 
 PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
 TURN_SAMPLE_RAD = math.radians(15.0)
+FAILURE_CHECKS = ("out_of_bounds", "tipover", "stuck", "collision")  # on one sample, the first listed wins
 
 
 class KinematicDynamics:
@@ -37,9 +38,11 @@ class KinematicDynamics:
         self.cfg, self.world, self.robot = cfg, world, robot
         half = robot.track_width / 2.0
         self._wheels = np.array([(ax, side) for ax in robot.axle_x for side in (half, -half)])  # body frame
+        self._wheel_x = self._wheels[:, :1].copy()  # (W, 1)
+        self._wheel_y_signed = np.stack([-self._wheels[:, 1:], self._wheels[:, 1:]])  # (2, W, 1): -by, by
         design = np.column_stack([np.ones(len(self._wheels)), self._wheels])
         self._fit = np.linalg.pinv(design)  # (3, W): plane coefficients (a, b, c) of z = a + b*bx + c*by
-        self._tan_tip = math.tan(math.radians(robot.tipover_deg))
+        self._max_slope_rad = math.radians(robot.max_slope_deg)
         self._state = RoverState()
         self._scene = None
 
@@ -49,39 +52,45 @@ class KinematicDynamics:
         return self._state
 
     @cached_property
-    def _collision_clearance(self) -> tuple[np.ndarray, float, float, float]:
-        """Distance to the nearest obstacle cell the chassis cannot pass over (inf without obstacles)."""
+    def _collision_clearance(self) -> tuple[np.ndarray, float, float, float] | None:
+        """Distance to the nearest obstacle cell the chassis cannot pass over; ``None`` without such cells."""
         from scipy.ndimage import distance_transform_edt
 
         om = self.world.obstacle_map
         blocking = om.height > self.robot.ground_clearance
-        if not blocking.any():  # a 1 x 1 sentinel: _clearance_at skips the lookup
-            return np.full((1, 1), np.inf), om.resolution, om.x_min, om.y_min
+        if not blocking.any():
+            return None
         clearance = distance_transform_edt(~blocking) * om.resolution
         return clearance, om.resolution, om.x_min, om.y_min
 
     def _clearance_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        clearance, res, x0, y0 = self._collision_clearance
-        if clearance.size == 1:  # nothing the chassis could hit in this world
+        """Clearance at each sample (inf in a world with nothing the chassis could hit)."""
+        if self._collision_clearance is None:
             return np.full(np.shape(x), np.inf)
+        clearance, res, x0, y0 = self._collision_clearance
         ny, nx = clearance.shape
-        ix = np.clip(np.rint((x - x0) / res).astype(np.int64), 0, nx - 1)
-        iy = np.clip(np.rint((y - y0) / res).astype(np.int64), 0, ny - 1)
+        ix = np.minimum(np.maximum(np.rint((x - x0) / res).astype(np.int64), 0), nx - 1)
+        iy = np.minimum(np.maximum(np.rint((y - y0) / res).astype(np.int64), 0), ny - 1)
         return clearance[iy, ix]
 
-    def _poses(self, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Height of the base, roll and pitch at each sample (vectorised plane fit under the wheels)."""
-        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-        bx, by = self._wheels[:, 0], self._wheels[:, 1]
-        wx = x[:, None] + c * bx - s * by
-        wy = y[:, None] + s * bx + c * by
-        coeff = self.world.height(wx, wy) @ self._fit.T  # (K, 3)
-        a, b, cc = coeff[:, 0], coeff[:, 1], coeff[:, 2]
-        norm = np.sqrt(1.0 + b * b + cc * cc)
-        pitch = -np.arctan(b)  # nose up when the terrain rises ahead: negative pitch (ZYX)
-        roll = np.arcsin(cc / norm)  # left side up: positive roll
+    def _poses(self, xy: np.ndarray, yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Height of the base ``(K,)`` and roll, pitch ``(K, 2)`` at samples ``xy (K, 2)``, ``yaw (K,)``: a
+        plane fitted to the terrain under the wheels (vectorised over samples and wheels)."""
+        k = len(yaw)
+        cos_sin = np.empty((2, 1, k))
+        np.cos(yaw, out=cos_sin[0, 0])
+        np.sin(yaw, out=cos_sin[1, 0])
+        # wheel contacts (2, W, K), samples innermost: x + cos bx - sin by, y + sin bx + cos by
+        contacts = xy.T[:, None, :] + cos_sin * self._wheel_x
+        contacts += cos_sin[::-1] * self._wheel_y_signed
+        heights = self.world.terrain.height_at(contacts.reshape(2, -1)).reshape(-1, k)  # (W, K)
+        a, b, c = self._fit @ heights  # plane z = a + b bx + c by at every sample
+        norm = np.sqrt(1.0 + b * b + c * c)
+        rp = np.empty((k, 2))  # written in place: the trace keeps it without a column_stack
+        np.arcsin(c / norm, out=rp[:, 0])  # left side up: positive roll
+        np.negative(np.arctan(b), out=rp[:, 1])  # nose up when the terrain rises ahead: negative pitch (ZYX)
         z = a + self.robot.base_height * (1.0 / norm)
-        return z, roll, pitch
+        return z, rp
 
     def _set_state(self, x: float, y: float, yaw: float, z: float, roll: float, pitch: float, t: float) -> None:
         self._state = RoverState(np.array([x, y, z]), np.array([roll, pitch, wrap_angle(yaw)]), time=t)
@@ -89,8 +98,8 @@ class KinematicDynamics:
     # ------------------------------------------------------------------ interface shared with physics
     def reset(self, xy: np.ndarray, yaw: float, rng: np.random.Generator | None = None) -> RoverState:
         x, y = float(xy[0]), float(xy[1])
-        z, roll, pitch = self._poses(np.array([x]), np.array([y]), np.array([yaw]))
-        self._set_state(x, y, yaw, float(z[0]), float(roll[0]), float(pitch[0]), 0.0)
+        z, rp = self._poses(np.array([[x, y]]), np.array([yaw]))
+        self._set_state(x, y, yaw, float(z[0]), float(rp[0, 0]), float(rp[0, 1]), 0.0)
         return self._state
 
     def execute(
@@ -108,41 +117,46 @@ class KinematicDynamics:
             turn = 0.0  # already facing it: the controller drives straight away (and steers the rest)
         # the rover executes the motion the controller planned from its estimate, starting from its true pose
         n_turn = int(math.ceil(abs(turn) / TURN_SAMPLE_RAD))
-        turn_yaw = yaw0 + turn * np.arange(1, n_turn + 1) / max(n_turn, 1)
         heading = yaw0 + turn
         drive = max(distance - controller.position_tolerance, 0.0)
         n_drive = max(int(math.ceil(drive / self.cfg.sample_spacing)), 1)
         s = drive * np.arange(1, n_drive + 1) / n_drive
-        xs = np.concatenate([[x0], np.full(n_turn, x0), x0 + s * math.cos(heading)])
-        ys = np.concatenate([[y0], np.full(n_turn, y0), y0 + s * math.sin(heading)])
-        yaws = np.concatenate([[yaw0], turn_yaw, np.full(n_drive, heading)])
-        times = np.concatenate(
-            [
-                [0.0],
-                np.abs(turn_yaw - yaw0) / controller.turn_speed,
-                abs(turn) / controller.turn_speed + s / controller.cruise_speed,
-            ]
-        )
-        travelled = np.concatenate([np.zeros(1 + n_turn), s])
-        return self._check_path(xs, ys, yaws, times, travelled)
+        # samples: the start, n_turn turning in place, n_drive along the straight drive (written in place)
+        m = 1 + n_turn  # the first drive sample
+        xy, yaws, times = np.empty((m + n_drive, 2)), np.empty(m + n_drive), np.empty(m + n_drive)
+        xy[:m] = x0, y0
+        np.multiply.outer(s, (math.cos(heading), math.sin(heading)), out=xy[m:])
+        xy[m:] += x0, y0
+        yaws[0], times[0] = yaw0, 0.0
+        turn_yaw = np.add(yaw0, turn * np.arange(1, m) / max(n_turn, 1), out=yaws[1:m])
+        np.divide(np.abs(turn_yaw - yaw0), controller.turn_speed, out=times[1:m])
+        yaws[m:] = heading
+        np.add(abs(turn) / controller.turn_speed, s / controller.cruise_speed, out=times[m:])
+        return self._check_path(xy, yaws, times, s, m)
 
     def _check_path(
-        self, xs: np.ndarray, ys: np.ndarray, yaws: np.ndarray, times: np.ndarray, travelled: np.ndarray
+        self, xy: np.ndarray, yaws: np.ndarray, times: np.ndarray, drive_s: np.ndarray, m: int
     ) -> WaypointResult:
-        z, roll, pitch = self._poses(xs, ys, yaws)
-        tilt = tilt_deg(roll, pitch)
+        """Walk the sampled path (``xy (K, 2)``, ``yaws``, ``times``; samples from ``m`` on lie ``drive_s``
+        metres along the drive) and stop at the first sample that breaks a limit."""
+        xs, ys = xy[:, 0], xy[:, 1]
+        z, rp = self._poses(xy, yaws)
+        tilt = tilt_deg(rp[:, 0], rp[:, 1])
         robot = self.robot
-        failures = {
-            "out_of_bounds": ~self.world.terrain.contains(xs, ys),
-            "tipover": tilt > robot.tipover_deg,
-            "stuck": -pitch > math.radians(robot.max_slope_deg),
-            "collision": self._clearance_at(xs, ys) < robot.radius,
-        }
-        first, outcome = len(xs), "reached"
-        for name, mask in failures.items():
-            hits = np.flatnonzero(mask[1:])  # the starting sample was checked when the rover got there
-            if hits.size and hits[0] + 1 < first:
-                first, outcome = int(hits[0]) + 1, name
+        # one row per sample, one column per failure in FAILURE_CHECKS order: the first True in row-major
+        # order is the earliest failing sample and, on a tie, the failure listed first
+        failed = np.empty((len(xs), len(FAILURE_CHECKS)), dtype=bool)
+        np.logical_not(self.world.terrain.contains(xs, ys), out=failed[:, 0])
+        np.greater(tilt, robot.tipover_deg, out=failed[:, 1])
+        np.less(rp[:, 1], -self._max_slope_rad, out=failed[:, 2])  # nose-up pitch above the limit
+        if self._collision_clearance is None:
+            failed[:, 3] = False
+        else:
+            np.less(self._clearance_at(xs, ys), robot.radius, out=failed[:, 3])
+        failed[0] = False  # the starting sample was checked when the rover got there
+        flat = int(failed.argmax())
+        first, check = divmod(flat, len(FAILURE_CHECKS))
+        outcome = FAILURE_CHECKS[check] if failed[first, check] else "reached"
         end = first if outcome != "reached" else len(xs) - 1
         if outcome == "stuck":
             end = max(first - 1, 0)  # wheels spin at the foot of the slope: the rover stays where it was
@@ -152,23 +166,16 @@ class KinematicDynamics:
             float(ys[end]),
             float(yaws[end]),
             float(z[end]),
-            float(roll[end]),
-            float(pitch[end]),
+            float(rp[end, 0]),
+            float(rp[end, 1]),
             self._state.time + float(times[end]),
         )
         trace_t = times[keep].copy()
         if outcome == "stuck":  # the wheels spin until the controller's stuck window runs out
             trace_t[-1] += self.cfg.stuck_window_s
             self._state.time += self.cfg.stuck_window_s
-        rp = np.column_stack([roll[keep], pitch[keep]])
-        result = self._finish(
-            outcome,
-            float(trace_t[-1]),
-            np.column_stack([xs[keep], ys[keep]]),
-            tilt[keep],
-            rp,
-            float(travelled[end]),
-        )
+        length = float(drive_s[end - m]) if end >= m else 0.0  # turning in place covers no distance
+        result = self._finish(outcome, float(trace_t[-1]), xy[keep], tilt[keep], rp[keep], length)
         result.trace_t = trace_t
         return result
 

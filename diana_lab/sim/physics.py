@@ -133,9 +133,7 @@ class PhysicsDynamics:
                     physicsClientId=c,
                 )
             else:
-                pb.changeDynamics(
-                    body, link, lateralFriction=CHASSIS_FRICTION, restitution=0.0, physicsClientId=c
-                )
+                pb.changeDynamics(body, link, lateralFriction=CHASSIS_FRICTION, restitution=0.0, physicsClientId=c)
 
     def _axle(self, link: int) -> np.ndarray:
         """Unit wheel axle in the link's inertial frame (Bullet's frame for its inertia and friction axes)."""
@@ -191,9 +189,7 @@ class PhysicsDynamics:
     def _footprint_heights(self, x: float, y: float, yaw: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Body-frame sample points of the footprint and the terrain heights under them."""
         r = self.robot
-        bx, by = np.meshgrid(
-            np.linspace(-r.length / 2, r.length / 2, 7), np.linspace(-r.width / 2, r.width / 2, 5)
-        )
+        bx, by = np.meshgrid(np.linspace(-r.length / 2, r.length / 2, 7), np.linspace(-r.width / 2, r.width / 2, 5))
         bx, by = bx.ravel(), by.ravel()
         c, s = math.cos(yaw), math.sin(yaw)
         return bx, by, self.world.height(x + c * bx - s * by, y + s * bx + c * by)

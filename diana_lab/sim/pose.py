@@ -33,7 +33,7 @@ class PoseService:
         self.rng = rng
 
     def estimate(self, state: RoverState) -> PoseEstimate:
-        roll, pitch, yaw = (float(a) for a in state.rpy)
+        roll, pitch, yaw = state.rpy.tolist()
         xy = state.position[:2].copy()
         if self._noisy:
             c = self.cfg
@@ -45,5 +45,7 @@ class PoseService:
 
     def xy_yaw(self, state: RoverState) -> tuple[np.ndarray, float]:
         """The controller's view: estimated position and heading (for the dynamics' ``pose_estimate``)."""
+        if not self._noisy:  # the estimate is the state itself: skip building a PoseEstimate
+            return state.position[:2].copy(), float(state.rpy[2])
         est = self.estimate(state)
         return est.xy, est.yaw

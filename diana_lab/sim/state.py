@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -45,8 +46,14 @@ class RoverState:
 
 
 def tilt_deg(roll: np.ndarray | float, pitch: np.ndarray | float) -> np.ndarray | float:
-    """Tilt of the body z axis from vertical for ZYX roll/pitch: ``acos(cos(roll) cos(pitch))``."""
-    return np.degrees(np.arccos(np.clip(np.cos(roll) * np.cos(pitch), -1.0, 1.0)))
+    """Tilt of the body z axis from vertical for ZYX roll/pitch: ``acos(cos(roll) cos(pitch))``.
+
+    Scalars go through ``math`` (a tenth of numpy's per-call cost; the env asks for one every step).
+    """
+    if isinstance(roll, float) and isinstance(pitch, float):  # numpy's float64 scalars included
+        return math.degrees(math.acos(min(max(math.cos(roll) * math.cos(pitch), -1.0), 1.0)))
+    c = np.cos(roll) * np.cos(pitch)
+    return np.degrees(np.arccos(np.minimum(np.maximum(c, -1.0), 1.0)))
 
 
 @dataclass
@@ -81,7 +88,11 @@ class WaypointResult:
             return np.zeros(0)
         if self.trace_t is None or len(self.trace_t) != k:
             return np.full(k, self.duration / k)
-        return np.diff(np.asarray(self.trace_t, dtype=np.float64), prepend=0.0).clip(min=0.0)
+        t = np.asarray(self.trace_t, dtype=np.float64)
+        durations = np.empty(k)  # np.diff(t, prepend=0.0), without its concatenate
+        durations[0] = t[0]
+        np.subtract(t[1:], t[:-1], out=durations[1:])
+        return np.maximum(durations, 0.0, out=durations)
 
     @property
     def max_tilt_deg(self) -> float:

@@ -77,9 +77,7 @@ def hills(cfg: HillsConfig) -> World:
     shape = _grid_shape(cfg)
     h = cfg.amplitude * _smooth_noise(rng, shape, cfg.feature_size / cfg.resolution / 2.0)
     h = _limit_slope(h, cfg.resolution, cfg.max_slope_deg)
-    return World(
-        cfg.name, Terrain(h - h.min(), cfg.size_x, cfg.size_y), [], cfg.seed, cfg.obstacle_resolution
-    )
+    return World(cfg.name, Terrain(h - h.min(), cfg.size_x, cfg.size_y), [], cfg.seed, cfg.obstacle_resolution)
 
 
 def _crater(x: np.ndarray, y: np.ndarray, cx: float, cy: float, radius: float, depth: float) -> np.ndarray:
@@ -90,9 +88,7 @@ def _crater(x: np.ndarray, y: np.ndarray, cx: float, cy: float, radius: float, d
     return bowl + rim
 
 
-def _rock(
-    rng: np.random.Generator, centre: np.ndarray, diameter: float, ground: float, name: str
-) -> Obstacle:
+def _rock(rng: np.random.Generator, centre: np.ndarray, diameter: float, ground: float, name: str) -> Obstacle:
     """A convex, irregular rock half-buried in the ground."""
     directions = rng.standard_normal((24, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
@@ -121,11 +117,7 @@ def craters(cfg: CratersConfig) -> World:
     for _ in range(3):  # dunes: a few long-crested ripples in random directions
         theta, phase = rng.uniform(0, np.pi), rng.uniform(0, 2 * np.pi)
         wavelength = cfg.dune_wavelength * rng.uniform(0.7, 1.3)
-        h += (
-            cfg.dune_amplitude
-            / 3
-            * np.sin(2 * np.pi * (x * np.cos(theta) + y * np.sin(theta)) / wavelength + phase)
-        )
+        h += cfg.dune_amplitude / 3 * np.sin(2 * np.pi * (x * np.cos(theta) + y * np.sin(theta)) / wavelength + phase)
     h += 0.5 * cfg.dune_amplitude * _smooth_noise(rng, h.shape, 3.0 / cfg.resolution)
     lo, hi = cfg.crater_radius
     for _ in range(cfg.n_craters):
@@ -157,9 +149,7 @@ def load_elevation(path: str | Path, key: str = "world.path") -> np.ndarray:
     """
     path = Path(path).expanduser()
     if not path.is_file():
-        raise ConfigError(
-            f"{key}: file not found: '{path}' (expected a .tif/.tiff, .png or .npy elevation model)"
-        )
+        raise ConfigError(f"{key}: file not found: '{path}' (expected a .tif/.tiff, .png or .npy elevation model)")
     suffix = path.suffix.lower()
     try:
         if suffix in (".tif", ".tiff"):
@@ -176,9 +166,7 @@ def load_elevation(path: str | Path, key: str = "world.path") -> np.ndarray:
         elif suffix == ".npy":
             data = np.load(path, allow_pickle=False).astype(np.float64)
         else:
-            raise ConfigError(
-                f"{key}: unsupported format '{suffix}' of '{path}'; expected .tif, .tiff, .png or .npy"
-            )
+            raise ConfigError(f"{key}: unsupported format '{suffix}' of '{path}'; expected .tif, .tiff, .png or .npy")
     except ConfigError:
         raise
     except Exception as exc:
@@ -186,23 +174,17 @@ def load_elevation(path: str | Path, key: str = "world.path") -> np.ndarray:
     if data.ndim == 3:  # a grey image saved with colour channels: all channels must agree
         data = data[..., 0]
     if data.ndim != 2 or min(data.shape) < 2:
-        raise ConfigError(
-            f"{key}: '{path}' holds an array of shape {data.shape}; expected a 2-D grid of >= 2 x 2"
-        )
+        raise ConfigError(f"{key}: '{path}' holds an array of shape {data.shape}; expected a 2-D grid of >= 2 x 2")
     bad = int(np.count_nonzero(~np.isfinite(data)))
     if bad:
-        raise ConfigError(
-            f"{key}: '{path}' has {bad} NaN or infinite cells; expected finite heights everywhere"
-        )
+        raise ConfigError(f"{key}: '{path}' has {bad} NaN or infinite cells; expected finite heights everywhere")
     return grid_from_image(data)
 
 
 def _load_mesh(path: str, key: str) -> Obstacle:
     p = Path(path).expanduser()
     if not p.is_file():
-        raise ConfigError(
-            f"{key}: obstacle mesh not found: '{p}' (expected .obj, .stl or .ply in world coordinates)"
-        )
+        raise ConfigError(f"{key}: obstacle mesh not found: '{p}' (expected .obj, .stl or .ply in world coordinates)")
     import open3d as o3d
 
     mesh = o3d.io.read_triangle_mesh(str(p))
@@ -215,6 +197,4 @@ def dem(cfg: DemConfig) -> World:
     """The user's own terrain: an elevation file plus optional obstacle meshes in world coordinates."""
     heights = load_elevation(cfg.path) * cfg.height_scale + cfg.height_offset
     obstacles = [_load_mesh(path, f"world.obstacles[{i}]") for i, path in enumerate(cfg.obstacles)]
-    return World(
-        cfg.name, Terrain(heights, cfg.size_x, cfg.size_y), obstacles, cfg.seed, cfg.obstacle_resolution
-    )
+    return World(cfg.name, Terrain(heights, cfg.size_x, cfg.size_y), obstacles, cfg.seed, cfg.obstacle_resolution)

@@ -13,6 +13,7 @@ import multiprocessing
 import signal
 from typing import Any
 
+import gymnasium as gym
 from omegaconf import DictConfig, OmegaConf
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
@@ -59,15 +60,22 @@ def shared_world(world_cfg: dict[str, Any]) -> World:
     return _WORLDS[key]
 
 
-def make_env(groups: dict[str, Any], render_mode: str | None = None) -> RoverNavEnv:
+def make_env(groups: dict[str, Any], render_mode: str | None = None, expert: str | None = None) -> gym.Env:
     """One env from plain env groups (module-level, so ``functools.partial(make_env, groups)`` pickles).
+
+    ``expert`` (a ``train.imitation.expert`` name) wraps it in :class:`~diana_lab.training.imitation.ExpertLabels`.
 
     In a SubprocVecEnv worker, Ctrl-C is ignored: the main process handles it (checkpoint, then closing the
     workers); a worker that died of it first would turn the interrupt into a broken pipe in the main process.
     """
     if multiprocessing.parent_process() is not None:
         signal.signal(signal.SIGINT, signal.SIG_IGN)
-    return RoverNavEnv(config=groups, world_instance=shared_world(groups["world"]), render_mode=render_mode)
+    env = RoverNavEnv(config=groups, world_instance=shared_world(groups["world"]), render_mode=render_mode)
+    if expert is None:
+        return env
+    from diana_lab.training.imitation import ExpertLabels, make_expert
+
+    return ExpertLabels(env, make_expert(expert))
 
 
 def check_env(groups: dict[str, Any], seed: int) -> None:
@@ -85,11 +93,13 @@ def check_env(groups: dict[str, Any], seed: int) -> None:
         env.close()
 
 
-def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int) -> VecEnv:
-    """``train.n_envs`` Monitor-wrapped envs; env ``i`` is seeded ``seed + i`` at its first reset."""
+def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: str | None = None) -> VecEnv:
+    """``train.n_envs`` Monitor-wrapped envs; env ``i`` is seeded ``seed + i`` at its first reset.
+
+    ``expert``: label every step for imitation (see :func:`make_env`)."""
     vec_cls = SubprocVecEnv if train.vec_env == "subproc" else DummyVecEnv
     return make_vec_env(
-        functools.partial(make_env, env_config(cfg)),
+        functools.partial(make_env, env_config(cfg), expert=expert),
         n_envs=train.n_envs,
         seed=seed,
         vec_env_cls=vec_cls,

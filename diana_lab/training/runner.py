@@ -42,6 +42,7 @@ from diana_lab.training.checkpoints import TrackedCheckpoints
 from diana_lab.training.context import TAG_GROUPS, RunContext, StopRun
 from diana_lab.training.envs import check_env, env_config, make_env, make_training_env, wrap_normalize
 from diana_lab.training.episode_stats import EpisodeStats
+from diana_lab.training.imitation import ImitationResult, imitate
 from diana_lab.training.periodic_eval import PeriodicEvaluation, save_model
 from diana_lab.training.progress import ProgressWithStats
 from diana_lab.training.resume import ResumePoint, find_resume_point, write_run_info
@@ -94,6 +95,7 @@ class TrainingRun:
         self.progress: ProgressWithStats | None = None
         self.start_steps = 0
         self.learn_time = 0.0
+        self.imitation: ImitationResult | None = None
 
     # ------------------------------------------------------------------ setup
     def log_run_metadata(self) -> None:
@@ -127,8 +129,10 @@ class TrainingRun:
 
     def build(self) -> None:
         device = self.train_cfg.device
+        imitation = self.train_cfg.imitation
         if self.resume is None:
-            self.venv = make_training_env(self.cfg, self.train_cfg, self.seed)
+            expert = imitation.expert if imitation.enabled else None
+            self.venv = make_training_env(self.cfg, self.train_cfg, self.seed, expert=expert)
             if self.algo.normalize:
                 self.venv = wrap_normalize(self.venv, self.algo, self.algo.gamma)
             self.model = build_model(self.algo, self.venv, self.seed, device)
@@ -189,11 +193,19 @@ class TrainingRun:
                 f"train.total_timesteps={self.train_cfg.total_timesteps}: the resumed model has already "
                 f"trained {self.model.num_timesteps} steps; set a larger total to continue"
             )
+        callbacks = self.callbacks()
+        if self.resume is None and self.train_cfg.imitation.enabled:
+            self.imitation = imitate(self.model, self.venv, self.train_cfg.imitation, self.seed, self.tracker)
+            self.tracker.set_tags({"imitation_steps": self.imitation.steps})
+            assert self.evaluator is not None
+            if self.eval_cfg.every > 0:  # where RL starts from, on the same suite as every later evaluation
+                self.evaluator.init_callback(self.model)
+                self.evaluator.evaluate()
         t0 = time.perf_counter()
         try:
             self.model.learn(
                 remaining,
-                callback=CallbackList(self.callbacks()),
+                callback=CallbackList(callbacks),
                 log_interval=self.train_cfg.log_interval,
                 reset_num_timesteps=self.resume is None,
                 progress_bar=False,
@@ -253,6 +265,8 @@ class TrainingRun:
             eval_summary=summary,
             best_spl=best if math.isfinite(best) else math.nan,
             checkpoint=self.checkpoints.last.model if self.checkpoints and self.checkpoints.last else None,
+            imitation_steps=self.imitation.steps if self.imitation else 0,
+            imitation_time_s=self.imitation.wall_time_s if self.imitation else 0.0,
         )
 
     def close(self) -> None:

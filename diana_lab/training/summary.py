@@ -25,6 +25,8 @@ class TrainResult:
     eval_summary: dict[str, Any] = field(default_factory=dict)  # the final evaluation's summary
     best_spl: float = math.nan
     checkpoint: Path | None = None  # the newest checkpoint (what train.resume continues from)
+    imitation_steps: int = 0  # env steps of the imitation stage (train.imitation), not in num_timesteps
+    imitation_time_s: float = 0.0
 
     @property
     def model_path(self) -> Path:
@@ -46,6 +48,8 @@ def summary_frame(r: TrainResult) -> pd.DataFrame:
         ("wall time (s)", round(r.wall_time_s, 1)),
         ("training FPS", round(r.fps, 1)),
     ]
+    if r.imitation_steps:
+        rows += [("imitation steps", r.imitation_steps), ("imitation time (s)", round(r.imitation_time_s, 1))]
     for key, label in (
         ("episodes", "eval episodes"),
         ("success_rate", "eval success rate"),

@@ -47,14 +47,10 @@ def test_noise_sweep_uses_the_realistic_preset_for_a_noiseless_sensor(flat_env, 
     sensor = flat_env.cfg["sensor"]
     assert sensor.noise == "none"
     assert noise_sensor(sensor, 0.5).noise == "realistic" and noise_sensor(sensor, 0.5).noise_level == 0.5
-    cfg = EvalConfig(
-        episodes=1, sensor_noise=[0.0, 2.0], video=False, plots=False, min_distance=4.0, max_distance=8.0
-    )
+    cfg = EvalConfig(episodes=1, sensor_noise=[0.0, 2.0], video=False, plots=False, min_distance=4.0, max_distance=8.0)
     results = sweep_sensor_noise(StraightLine(), flat_env, cfg, tmp_path)
     assert list(results) == [0.0, 2.0]
-    assert (tmp_path / "noise_0" / "summary.json").is_file() and (
-        tmp_path / "noise_2" / "summary.json"
-    ).is_file()
+    assert (tmp_path / "noise_0" / "summary.json").is_file() and (tmp_path / "noise_2" / "summary.json").is_file()
     assert len((tmp_path / "sensor_noise.csv").read_text().splitlines()) == 3
 
 

@@ -15,9 +15,7 @@ def goal_space():
 def test_observation_mismatch_names_the_key_and_shapes():
     trained = spaces.Dict({"goal": goal_space(), "depth_image": spaces.Box(0, 1, (1, 48, 64), np.float32)})
     other = spaces.Dict({"goal": goal_space(), "depth_image": spaces.Box(0, 1, (1, 112, 112), np.float32)})
-    with pytest.raises(
-        ConfigError, match=r"'depth_image' is \(1, 48, 64\) float32 for the policy but \(1, 112, 112\)"
-    ):
+    with pytest.raises(ConfigError, match=r"'depth_image' is \(1, 48, 64\) float32 for the policy but \(1, 112, 112\)"):
         check_observation_space(trained, other, "model.zip")
     lidar = spaces.Dict({"goal": goal_space(), "elevation_map": spaces.Box(-1, 1, (2, 40, 40), np.float32)})
     with pytest.raises(ConfigError, match=r"expects observation key 'depth_image'.*'elevation_map'"):
@@ -55,9 +53,7 @@ def test_a_saved_sb3_model_loads_runs_and_is_refused_on_other_observations(tmp_p
     )
     model.save(tmp_path / "model.zip")
     cfg = compose(["world=flat"])
-    loaded = load_policy(
-        str(tmp_path / "model.zip"), cfg, type("E", (), {"deterministic": True, "seed": 0})()
-    )
+    loaded = load_policy(str(tmp_path / "model.zip"), cfg, type("E", (), {"deterministic": True, "seed": 0})())
     assert loaded.model is not None and loaded.policy.vecnormalize is None
     check_observation_space(loaded.model.observation_space, flat_env.observation_space, loaded.label)
     spec = EpisodeSpec(np.array([-3.0, 0.0]), 0.0, np.array([3.0, 0.0]), seed=1)

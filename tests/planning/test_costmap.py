@@ -32,9 +32,7 @@ def test_cell_coordinates_round_trip(jackal):
     assert not cm.traversable(50.0, 0.0) and cm.component_at(50.0, 0.0) == 0
 
 
-@pytest.mark.parametrize(
-    ("slope_deg", "passable"), [(10.0, True), (20.0, True), (23.0, False), (30.0, False)]
-)
+@pytest.mark.parametrize(("slope_deg", "passable"), [(10.0, True), (20.0, True), (23.0, False), (30.0, False)])
 def test_slope_against_robot_limit(jackal, slope_deg, passable):
     cm = build_costmap(ramp_world(slope_deg), jackal)
     limit = jackal.max_slope_deg - CostMapConfig().slope_margin_deg  # 25 - 3 degrees

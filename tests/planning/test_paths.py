@@ -135,3 +135,47 @@ def test_mars_yard_plan_respects_slope_limit(mars_yard, jackal, rng):
     t = mars_yard.terrain
     jy, jx = np.unravel_index(np.argmax(t.heights), t.shape)
     assert plan(cm, start, np.array(t.cell_xy(jx, jy))) is None
+
+
+# ------------------------------------------------------------------------------ next_waypoint (the DAgger expert)
+
+
+def test_next_waypoint_on_open_ground_heads_straight_for_the_goal(open_ground, rng):
+    from diana_lab.planning import next_waypoint
+
+    for _ in range(20):
+        start, goal = rng.uniform(-9.0, 9.0, size=(2, 2))
+        wp = next_waypoint(open_ground, start, goal, reach=3.0)
+        d = float(np.hypot(*(goal - start)))
+        if d <= 3.0:
+            assert np.allclose(wp, goal)
+        else:
+            assert np.hypot(*(wp - start)) == pytest.approx(3.0)
+            assert np.allclose(wp, start + (goal - start) * 3.0 / d)
+
+
+def test_next_waypoint_goes_round_a_wall_and_never_through_it(jackal):
+    from diana_lab.planning import next_waypoint
+
+    world = flat_world(obstacles=[box(-0.2, 0.2, -11.0, 6.0, 1.0)])  # open only at its north end
+    cm = build_costmap(world, jackal)
+    start, goal = np.array([-3.0, 0.0]), np.array([3.0, 0.0])
+    xy, steps = start.copy(), 0
+    while np.hypot(*(goal - xy)) > 1e-6 and steps < 20:
+        wp = next_waypoint(cm, xy, goal, reach=3.0)
+        assert wp is not None and np.hypot(*(wp - xy)) <= 3.0 + 1e-9
+        seg = np.linspace(xy, wp, 50)
+        assert np.all(np.isfinite(cm.cost_at(seg[:, 0], seg[:, 1])))  # never enters the wall's band
+        xy, steps = wp, steps + 1
+    assert np.allclose(xy, goal)
+    assert 6 <= steps <= 10  # round the north end (about 17 m at 3 m a step), not a wander
+
+
+def test_next_waypoint_is_none_without_a_path(jackal):
+    from diana_lab.planning import next_waypoint
+
+    world = flat_world(obstacles=[box(-0.2, 0.2, -11.0, 11.0, 1.0)])  # a wall across the whole map
+    cm = build_costmap(world, jackal)
+    assert next_waypoint(cm, np.array([-3.0, 0.0]), np.array([3.0, 0.0]), reach=3.0) is None
+    with pytest.raises(ValueError, match="reach"):
+        next_waypoint(cm, np.array([-3.0, 0.0]), np.array([-5.0, 0.0]), reach=0.0)

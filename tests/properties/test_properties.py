@@ -18,8 +18,12 @@ FAST = settings(max_examples=60, deadline=None, suppress_health_check=[HealthChe
 
 
 @FAST
-@given(action=st.tuples(finite, finite), yaw=angles, shape=st.sampled_from(["square", "circle"]),
-       frame=st.sampled_from(["rover", "world"]))
+@given(
+    action=st.tuples(finite, finite),
+    yaw=angles,
+    shape=st.sampled_from(["square", "circle"]),
+    frame=st.sampled_from(["rover", "world"]),
+)
 def test_waypoints_stay_inside_their_shape(action, yaw, shape, frame):
     mapping = WaypointMapping(to_object("action_space", {"name": shape, "shape": shape, "frame": frame}))
     offset = mapping.offset(np.array(action), yaw)
@@ -34,11 +38,16 @@ def test_waypoints_stay_inside_their_shape(action, yaw, shape, frame):
 
 
 @FAST
-@given(prev=st.floats(0, 100), dist=st.floats(0, 100), heading=angles,
-       rp=st.lists(st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)), min_size=1, max_size=20),
-       outcome=st.sampled_from([None, "success", "collision", "tipover", "out_of_bounds", "timeout", "stuck"]),
-       waypoint=st.sampled_from(["reached", "gave_up", "stuck", "collision"]), duration=st.floats(0, 1000),
-       preset=st.sampled_from(["default", "paper"]))
+@given(
+    prev=st.floats(0, 100),
+    dist=st.floats(0, 100),
+    heading=angles,
+    rp=st.lists(st.tuples(st.floats(-1.5, 1.5), st.floats(-1.5, 1.5)), min_size=1, max_size=20),
+    outcome=st.sampled_from([None, "success", "collision", "tipover", "out_of_bounds", "timeout", "stuck"]),
+    waypoint=st.sampled_from(["reached", "gave_up", "stuck", "collision"]),
+    duration=st.floats(0, 1000),
+    preset=st.sampled_from(["default", "paper"]),
+)
 def test_reward_terms_are_finite_and_bounded(prev, dist, heading, rp, outcome, waypoint, duration, preset):
     manager = RewardManager(to_object("reward", preset))
     rp = np.array(rp)
@@ -64,9 +73,12 @@ def env_for(world: str, encoding: str) -> RoverNavEnv:
 
 
 @settings(max_examples=40, deadline=None)
-@given(world=st.sampled_from(["mars_yard", "hills", "craters"]),
-       encoding=st.sampled_from(["depth_image", "elevation_map", "points"]),
-       seed=st.integers(0, 2**31 - 1), actions=st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1)), max_size=4))
+@given(
+    world=st.sampled_from(["mars_yard", "hills", "craters"]),
+    encoding=st.sampled_from(["depth_image", "elevation_map", "points"]),
+    seed=st.integers(0, 2**31 - 1),
+    actions=st.lists(st.tuples(st.floats(-1, 1), st.floats(-1, 1)), max_size=4),
+)
 def test_observations_stay_inside_their_spaces(world, encoding, seed, actions):
     env = env_for(world, encoding)
     obs, _ = env.reset(seed=seed)
@@ -79,8 +91,14 @@ def test_observations_stay_inside_their_spaces(world, encoding, seed, actions):
 
 
 @settings(max_examples=40, deadline=None)
-@given(x=st.floats(-24, 24), y=st.floats(-24, 24), yaw=angles, roll=st.floats(-0.6, 0.6),
-       pitch=st.floats(-0.6, 0.6), encoding=st.sampled_from(["depth_image", "elevation_map", "points"]))
+@given(
+    x=st.floats(-24, 24),
+    y=st.floats(-24, 24),
+    yaw=angles,
+    roll=st.floats(-0.6, 0.6),
+    pitch=st.floats(-0.6, 0.6),
+    encoding=st.sampled_from(["depth_image", "elevation_map", "points"]),
+)
 def test_encoders_inside_their_space_on_random_poses(x, y, yaw, roll, pitch, encoding):
     env = env_for("mars_yard", encoding)
     sensor = env.sensor

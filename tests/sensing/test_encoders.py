@@ -76,9 +76,7 @@ def test_elevation_map_shows_ground_and_an_obstacle_in_the_right_cells():
 
 def test_elevation_map_outlier_removal_runs():
     em = dataclasses.replace(ElevationMapConfig(), outlier_removal=True)
-    cam = make_sensor(
-        "depth_camera", plane_world(0.0), encoding="elevation_map", elevation_map=em, noise="harsh"
-    )
+    cam = make_sensor("depth_camera", plane_world(0.0), encoding="elevation_map", elevation_map=em, noise="harsh")
     obs = cam.observe(np.array([0.0, 0.0, 0.1]), np.zeros(3))
     assert cam.observation_space.contains(obs) and obs[1].sum() > 50
 

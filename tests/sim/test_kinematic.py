@@ -24,9 +24,7 @@ def test_reaches_a_3m_waypoint_on_flat(flat_world, robot_name):
     assert math.dist(dyn.state.xy, (3.0, 0.0)) <= ctl.position_tolerance + 1e-9
     assert dyn.state.yaw == pytest.approx(0.0, abs=1e-9)
     # turn 90 degrees, then drive 2.8 m at cruise speed
-    assert result.duration == pytest.approx(
-        math.pi / 2 / robot.turn_speed + 2.8 / robot.cruise_speed, rel=1e-6
-    )
+    assert result.duration == pytest.approx(math.pi / 2 / robot.turn_speed + 2.8 / robot.cruise_speed, rel=1e-6)
     assert result.path_length == pytest.approx(3.0 - ctl.position_tolerance)
     assert dyn.state.position[2] == pytest.approx(robot.base_height)
 
@@ -42,9 +40,7 @@ def test_cruise_speed_sets_the_drive_time(flat_world, jackal, speed):
 
 def slope_world(angle_deg: float, size: float = 20.0) -> World:
     x = np.linspace(-size / 2, size / 2, 81)
-    grid = np.tile(
-        np.maximum(x, 0.0) * math.tan(math.radians(angle_deg)), (81, 1)
-    )  # flat, then a ramp up in +x
+    grid = np.tile(np.maximum(x, 0.0) * math.tan(math.radians(angle_deg)), (81, 1))  # flat, then a ramp up in +x
     return World("ramp", Terrain(grid, size, size))
 
 

@@ -86,9 +86,7 @@ def test_reaches_a_3m_waypoint_on_flat(flat_world, name, speed):
         assert len(result.trace_xy) == len(result.trace_tilt_deg) == len(result.trace_rp) >= 2
         np.testing.assert_allclose(result.trace_xy[0], start.xy)
         np.testing.assert_allclose(result.trace_xy[-1], end.xy)
-        assert result.path_length == pytest.approx(
-            np.sum(np.linalg.norm(np.diff(result.trace_xy, axis=0), axis=1))
-        )
+        assert result.path_length == pytest.approx(np.sum(np.linalg.norm(np.diff(result.trace_xy, axis=0), axis=1)))
         assert 2.6 < result.path_length < 3.5
         assert result.max_tilt_deg < 5.0
 
@@ -182,9 +180,7 @@ def test_leaving_the_terrain_is_out_of_bounds(flat_world):
 
 
 def test_the_time_limit_gives_up(flat_world):
-    dyn, ctl = make(
-        flat_world, to_object("robot", "jackal"), controller={"timeout_factor": 1.0, "timeout_margin": 0.0}
-    )
+    dyn, ctl = make(flat_world, to_object("robot", "jackal"), controller={"timeout_factor": 1.0, "timeout_margin": 0.0})
     with dyn:
         dyn.reset(np.array([0.0, 0.0]), 0.0)
         result = dyn.execute(np.array([0.0, 3.0]), ctl)  # the turn cannot be as fast as the nominal one

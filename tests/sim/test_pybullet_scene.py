@@ -15,9 +15,7 @@ from diana_lab.sim.world import Obstacle, World
 ROBOTS = ["jackal", "husky", "rocker_bogie"]
 
 
-def ray_heights(
-    scene: PybulletScene, x: np.ndarray, y: np.ndarray, top: float = 50.0
-) -> tuple[list, np.ndarray]:
+def ray_heights(scene: PybulletScene, x: np.ndarray, y: np.ndarray, top: float = 50.0) -> tuple[list, np.ndarray]:
     """Body ids hit and hit heights of vertical rays cast down at ``(x, y)``."""
     starts = [[a, b, top] for a, b in zip(x, y)]
     ends = [[a, b, -top] for a, b in zip(x, y)]
@@ -78,9 +76,7 @@ def u_shape(centre) -> Obstacle:
 
 def test_obstacles_are_static_bodies_of_the_right_shape(jackal_cfg):
     flat = Terrain(np.zeros((21, 21)), 10.0, 10.0)
-    world = World(
-        "obstacles", flat, [box_obstacle((2.0, 1.0, 0.25), (0.5, 0.5, 0.5)), u_shape((-2.0, 0.0, 0.0))]
-    )
+    world = World("obstacles", flat, [box_obstacle((2.0, 1.0, 0.25), (0.5, 0.5, 0.5)), u_shape((-2.0, 0.0, 0.0))])
     with PybulletScene(world, jackal_cfg) as scene:
         far_away_robot(scene)
         assert len(scene.obstacle_ids) == 2
@@ -129,9 +125,7 @@ def test_set_pose_places_the_base_link_frame(flat_world, name):
 
 
 def test_a_wrong_wheel_joint_name_names_the_key(flat_world, jackal_cfg):
-    bad = to_object(
-        "robot", {**jackal_cfg.__dict__, "wheel_joints_left": ["front_left_wheel", "left_wheel_9"]}
-    )
+    bad = to_object("robot", {**jackal_cfg.__dict__, "wheel_joints_left": ["front_left_wheel", "left_wheel_9"]})
     with pytest.raises(ConfigError, match=r"robot\.wheel_joints_left: joint 'left_wheel_9' is not in"):
         PybulletScene(flat_world, bad)
     bad = to_object("robot", {**jackal_cfg.__dict__, "wheel_joints_right": ["chassis"]})
@@ -149,9 +143,7 @@ def test_urdf_specs_resolve_or_name_the_key():
 def test_rocker_differential_keeps_the_body_at_the_mean_rocker_pitch():
     """Lift the left front wheel onto a step: the left rocker tilts, the body pitches by half of it."""
     robot = to_object("robot", "rocker_bogie")
-    world = World(
-        "flat", Terrain(np.zeros((21, 21)), 10.0, 10.0), [box_obstacle((0.35, 0.3, 0.075), (0.3, 0.2, 0.15))]
-    )
+    world = World("flat", Terrain(np.zeros((21, 21)), 10.0, 10.0), [box_obstacle((0.35, 0.3, 0.075), (0.3, 0.2, 0.15))])
     with PybulletScene(world, robot) as scene:
         c, body = scene.client, scene.robot_id
         pb.setGravity(0, 0, -9.81, physicsClientId=c)

@@ -35,9 +35,7 @@ def test_height_query_is_the_mesh_surface(mars_yard, rng):
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(vertices, triangles.astype(np.uint32))
     xy = rng.uniform(-24.9, 24.9, size=(500, 2))
-    rays = np.column_stack([xy, np.full(500, 10.0), np.zeros(500), np.zeros(500), -np.ones(500)]).astype(
-        np.float32
-    )
+    rays = np.column_stack([xy, np.full(500, 10.0), np.zeros(500), np.zeros(500), -np.ones(500)]).astype(np.float32)
     hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
     np.testing.assert_allclose(10.0 - hit, mars_yard.height(xy[:, 0], xy[:, 1]), atol=1e-4)
 
