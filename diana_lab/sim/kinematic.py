@@ -125,8 +125,8 @@ class KinematicDynamics:
         m = 1 + n_turn  # the first drive sample
         xy, yaws, times = np.empty((m + n_drive, 2)), np.empty(m + n_drive), np.empty(m + n_drive)
         xy[:m] = x0, y0
-        np.multiply.outer(s, (math.cos(heading), math.sin(heading)), out=xy[m:])
-        xy[m:] += x0, y0
+        xy[m:, 0] = x0 + s * math.cos(heading)
+        xy[m:, 1] = y0 + s * math.sin(heading)
         yaws[0], times[0] = yaw0, 0.0
         turn_yaw = np.add(yaw0, turn * np.arange(1, m) / max(n_turn, 1), out=yaws[1:m])
         np.divide(np.abs(turn_yaw - yaw0), controller.turn_speed, out=times[1:m])
