@@ -43,14 +43,19 @@ def test_labels_are_the_oracles_action_and_can_be_switched_off():
     env.close()
 
 
-def test_dagger_fits_the_expert_and_sets_the_exploration_noise():
+def _imitate(seed: int, steps: int, epochs: int):
+    """A small PPO policy on flat ground after 3 DAgger iterations: ``(model, venv, cfg, result)``."""
     groups = _groups()
     venv = VecNormalize(DummyVecEnv([lambda: make_env(groups, expert="astar") for _ in range(2)]), norm_reward=False)
-    venv.seed(0)
+    venv.seed(seed)
     algo = validate(compose([*FLAT, "algo=ppo", "algo.net_arch=[32]", "algo.extractor.cnn_channels=[4]"]), ["algo"])
-    model = build_model(algo["algo"], venv, seed=0)
-    cfg = ImitationConfig(enabled=True, iterations=3, steps_per_iteration=256, epochs=8, learning_rate=3e-3)
-    result = imitate(model, venv, cfg, seed=0, tracker=Tracker())
+    model = build_model(algo["algo"], venv, seed=seed)
+    cfg = ImitationConfig(enabled=True, iterations=3, steps_per_iteration=steps, epochs=epochs, learning_rate=3e-3)
+    return model, venv, cfg, imitate(model, venv, cfg, seed=seed, tracker=Tracker())
+
+
+def test_dagger_fits_the_expert_and_sets_the_exploration_noise():
+    model, venv, cfg, result = _imitate(seed=0, steps=256, epochs=8)
     assert result.steps == 3 * 256
     assert [row["beta"] for row in result.history] == [1.0, 0.5, 0.25]
     assert result.history[0]["learner_fraction"] == 0.0 and result.history[-1]["learner_fraction"] > 0.5
@@ -66,14 +71,8 @@ def test_dagger_fits_the_expert_and_sets_the_exploration_noise():
 def test_imitated_policy_drives_to_the_goal_on_flat_ground():
     from diana_lab.evaluation import SB3Policy, make_suite, run_suite, summarize
 
-    groups = _groups()
-    venv = VecNormalize(DummyVecEnv([lambda: make_env(groups, expert="astar") for _ in range(2)]), norm_reward=False)
-    venv.seed(1)
-    algo = validate(compose([*FLAT, "algo=ppo", "algo.net_arch=[32]", "algo.extractor.cnn_channels=[4]"]), ["algo"])
-    model = build_model(algo["algo"], venv, seed=1)
-    cfg = ImitationConfig(enabled=True, iterations=3, steps_per_iteration=512, epochs=10, learning_rate=3e-3)
-    imitate(model, venv, cfg, seed=1, tracker=Tracker())
-    env = make_env(groups)
+    model, venv, _, _ = _imitate(seed=1, steps=512, epochs=10)
+    env = make_env(_groups())
     suite = make_suite(env, 10, 7, 4.0, 12.0)
     summary = summarize(run_suite(SB3Policy(model, venv), env, suite))
     assert summary["success_rate"] >= 0.9
