@@ -126,6 +126,17 @@ def _cell_of(costmap: CostMap, xy: np.ndarray, snap: float) -> int | None:
     return int(nearest.flat[flat]) if dist.flat[flat] <= snap else None
 
 
+def _endpoints(
+    costmap: CostMap, start_xy: np.ndarray, goal_xy: np.ndarray, snap: float, caller: str
+) -> tuple[np.ndarray, np.ndarray, int | None, int | None]:
+    """Start and goal as float x, y (finite, else ValueError naming ``caller``) and their cells (or None)."""
+    start = np.asarray(start_xy, dtype=np.float64).ravel()[:2]
+    goal = np.asarray(goal_xy, dtype=np.float64).ravel()[:2]
+    if not (np.all(np.isfinite(start)) and np.all(np.isfinite(goal))):
+        raise ValueError(f"{caller}: start and goal must be finite x, y, got {start} and {goal}")
+    return start, goal, _cell_of(costmap, start, snap), _cell_of(costmap, goal, snap)
+
+
 # ---------------------------------------------------------------------------------------------- smoothing
 
 
@@ -288,11 +299,7 @@ def plan(
     or goal that lies in an untraversable cell (e.g. a rover that drifted into the inflation band) use the
     nearest traversable cell within that distance. Start and goal outside the map give None.
     """
-    start = np.asarray(start_xy, dtype=np.float64).ravel()[:2]
-    goal = np.asarray(goal_xy, dtype=np.float64).ravel()[:2]
-    if not (np.all(np.isfinite(start)) and np.all(np.isfinite(goal))):
-        raise ValueError(f"plan: start and goal must be finite x, y, got {start} and {goal}")
-    s, g = _cell_of(costmap, start, snap), _cell_of(costmap, goal, snap)
+    start, goal, s, g = _endpoints(costmap, start_xy, goal_xy, snap, "plan")
     if s is None or g is None:
         return None
     dist, pred = _search(costmap, s, weighted)
@@ -334,13 +341,9 @@ def next_waypoint(
     Mars yard). The edge costs are symmetric, so one search from the *goal* (cached) serves every start of
     the episode, and a step costs one batch of segment integrals (about a millisecond).
     """
-    start = np.asarray(start_xy, dtype=np.float64).ravel()[:2]
-    goal = np.asarray(goal_xy, dtype=np.float64).ravel()[:2]
-    if not (np.all(np.isfinite(start)) and np.all(np.isfinite(goal))):
-        raise ValueError(f"next_waypoint: start and goal must be finite x, y, got {start} and {goal}")
     if not reach > 0.0:
         raise ValueError(f"next_waypoint: reach must be positive, got {reach!r}")
-    s, g = _cell_of(costmap, start, snap), _cell_of(costmap, goal, snap)
+    start, goal, s, g = _endpoints(costmap, start_xy, goal_xy, snap, "next_waypoint")
     if s is None or g is None:
         return None
     to_go, _ = _search(costmap, g, weighted)
