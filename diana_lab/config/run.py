@@ -233,7 +233,7 @@ class TD3Config(DDPGConfig):
 # ----------------------------------------------------------------------------------------------- train
 
 
-EXPERTS = ("astar",)
+EXPERTS = ("astar", "astar_memory")
 
 
 @dataclass
@@ -248,7 +248,11 @@ class ImitationConfig:
     """
 
     enabled: bool = False
-    expert: str = "astar"  # the receding-horizon A* oracle (privileged: it sees the whole cost map)
+    # "astar": the receding-horizon A* oracle with the whole cost map (privileged); "astar_memory": the same
+    # oracle knowing only what lay within ``knowledge_radius`` of the rover so far in the episode (unknown
+    # ground is taken as the cheapest), so its choices depend only on what a mapping policy could know
+    expert: str = "astar"
+    knowledge_radius: float = 12.0  # m, for "astar_memory"
     iterations: int = 6
     steps_per_iteration: int = 8192  # env steps per iteration, over all training envs
     beta: float = 1.0
@@ -262,6 +266,7 @@ class ImitationConfig:
     def __post_init__(self) -> None:
         key = "train.imitation"
         one_of(f"{key}.expert", self.expert, EXPERTS)
+        positive(f"{key}.knowledge_radius", self.knowledge_radius)
         _positive_int(f"{key}.iterations", self.iterations)
         _positive_int(f"{key}.steps_per_iteration", self.steps_per_iteration)
         in_range(f"{key}.beta", self.beta, 0.0, 1.0)

@@ -34,6 +34,10 @@ class ElevationMapConfig:
     Rows run along the rover heading (row 0 is ``extent_forward`` ahead), columns across it (column 0 is
     ``extent_side`` to the left). Each cell holds the highest point relative to the rover base, clipped to
     ``+-height_clip``; a second channel marks cells that received any point.
+
+    ``memory: true`` fuses every frame of the episode into a world-frame map (``memory_radius`` around the
+    episode's first pose, :class:`diana_lab.height_memory.HeightMemory`) and shows its window instead of the
+    current frame alone: cells seen earlier stay known after they leave the field of view.
     """
 
     cell_size: float = 0.25
@@ -45,6 +49,8 @@ class ElevationMapConfig:
     outlier_removal: bool = False  # open3d statistical outlier removal (~3 ms a frame: off by default)
     nb_neighbors: int = 12
     std_ratio: float = 2.0
+    memory: bool = False  # fuse the episode's frames into a world-frame map (see the class docstring)
+    memory_radius: float = 64.0  # half-width of that map around the episode's first pose (m)
 
     def __post_init__(self) -> None:
         key = "sensor.elevation_map"
@@ -56,6 +62,9 @@ class ElevationMapConfig:
         non_negative(f"{key}.voxel_size", self.voxel_size)
         positive_int(f"{key}.nb_neighbors", self.nb_neighbors)
         positive(f"{key}.std_ratio", self.std_ratio)
+        positive(f"{key}.memory_radius", self.memory_radius)
+        if not isinstance(self.memory, bool):
+            raise ConfigError(f"{key}.memory: expected true or false, got {self.memory!r}")
         rows, cols = self.shape
         if rows * cols > 512 * 512:
             raise ConfigError(

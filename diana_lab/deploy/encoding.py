@@ -13,17 +13,22 @@ encoder saw:
   subsampling). open3d is imported only here, and only when a voxel size (or outlier removal) asks for it.
 
 Every encoder first drops the points the trained sensor could not have returned (outside its range or
-field of view).
+field of view). An ``elevation_map`` trained with ``memory: true`` keeps the episode's map
+(:class:`~diana_lab.height_memory.HeightMemory`, the class the training encoder uses): call
+:meth:`CloudEncoder.reset` (``Navigator.reset``) whenever a new goal starts a new traverse.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
 
 from diana_lab.deploy.geometry import SensorModel, leveling_matrix
+from diana_lab.deploy.inputs import Pose
 from diana_lab.deploy.spec import EncodingSpec, SensorSpec
+from diana_lab.height_memory import HeightMemory
 
 __all__ = ["CloudEncoder", "DepthImage", "ElevationMap", "Points", "make_cloud_encoder"]
 
@@ -39,7 +44,7 @@ def _positions(cloud: Any) -> np.ndarray:
 
 
 class CloudEncoder:
-    """Base: ``encoder(points_sensor, roll, pitch)`` -> float32 array of ``shape`` (no batch axis)."""
+    """Base: ``encoder(points_sensor, pose)`` -> float32 array of ``shape`` (no batch axis)."""
 
     shape: tuple[int, ...]
 
@@ -54,7 +59,10 @@ class CloudEncoder:
         idx, _ = self.sensor.locate(points)
         return self.sensor.to_rover(points.take(idx, axis=0)).astype(np.float32)
 
-    def __call__(self, points: np.ndarray, roll: float, pitch: float) -> np.ndarray:
+    def reset(self) -> None:
+        """A new traverse: stateful encodings forget their map."""
+
+    def __call__(self, points: np.ndarray, pose: Pose) -> np.ndarray:
         raise NotImplementedError
 
 
@@ -70,7 +78,7 @@ class DepthImage(CloudEncoder):
         if self.shape != (1, rows, cols):
             raise ValueError(f"encoding.shape: expected (1, {rows}, {cols}) for this sensor, got {self.shape}")
 
-    def __call__(self, points: np.ndarray, roll: float, pitch: float) -> np.ndarray:
+    def __call__(self, points: np.ndarray, pose: Pose) -> np.ndarray:
         idx, pixel = self.sensor.locate(points)
         seen = points.take(idx, axis=0)
         # a camera reports depth along its optical axis (x), a lidar the range along the ray
@@ -94,6 +102,17 @@ class ElevationMap(CloudEncoder):
         if len(self.shape) != 3 or self.shape[0] != 2:
             raise ValueError(f"encoding.shape: expected (2, rows, cols) for elevation_map, got {self.shape}")
         self.rows, self.cols = self.shape[1], self.shape[2]
+        self.memory = (
+            HeightMemory(
+                self.cell_size, float(p("memory_radius")), self.rows, self.cols, self.extent_forward, self.extent_side
+            )
+            if bool(encoding.params.get("memory", False))
+            else None
+        )
+
+    def reset(self) -> None:
+        if self.memory is not None:
+            self.memory.reset()
 
     def _filter(self, pts: np.ndarray) -> np.ndarray:
         if len(pts) == 0 or (self.voxel_size <= 0 and not self.outlier_removal):
@@ -105,24 +124,38 @@ class ElevationMap(CloudEncoder):
             cloud, _ = cloud.remove_statistical_outlier(self.nb_neighbors, self.std_ratio)
         return _positions(cloud)
 
-    def __call__(self, points: np.ndarray, roll: float, pitch: float) -> np.ndarray:
+    def __call__(self, points: np.ndarray, pose: Pose) -> np.ndarray:
         rows, cols, clip = self.rows, self.cols, self.height_clip
         pts = self.visible_rover_points(points)
         if len(pts):
-            pts = pts @ leveling_matrix((roll, pitch, 0.0)).T.astype(np.float32)
+            pts = pts @ leveling_matrix((pose.roll, pose.pitch, 0.0)).T.astype(np.float32)
         pts = self._filter(pts)
-        inv = 1.0 / self.cell_size
-        row = np.floor((self.extent_forward - pts[:, 0]) * inv).astype(np.int64)
-        col = np.floor((self.extent_side - pts[:, 1]) * inv).astype(np.int64)
-        ok = np.flatnonzero((row >= 0) & (row < rows) & (col >= 0) & (col < cols))
-        top = np.full(rows * cols, -np.inf, dtype=np.float32)
-        np.maximum.at(top, row.take(ok) * cols + col.take(ok), pts[:, 2].take(ok))
+        if self.memory is not None:
+            top = self._remembered(pts, pose)
+        else:
+            inv = 1.0 / self.cell_size
+            row = np.floor((self.extent_forward - pts[:, 0]) * inv).astype(np.int64)
+            col = np.floor((self.extent_side - pts[:, 1]) * inv).astype(np.int64)
+            ok = np.flatnonzero((row >= 0) & (row < rows) & (col >= 0) & (col < cols))
+            top = np.full(rows * cols, -np.inf, dtype=np.float32)
+            np.maximum.at(top, row.take(ok) * cols + col.take(ok), pts[:, 2].take(ok))
         known = top > -np.inf
         out = np.empty((2, rows * cols), dtype=np.float32)
         height = np.clip(top, -clip, clip) * (0.5 / clip) + 0.5
         out[0] = np.where(known, height, self.unknown_height)
         out[1] = known
         return out.reshape(self.shape)
+
+    def _remembered(self, levelled: np.ndarray, pose: Pose) -> np.ndarray:
+        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+        world = np.empty_like(levelled)
+        world[:, 0] = c * levelled[:, 0] - s * levelled[:, 1] + pose.x
+        world[:, 1] = s * levelled[:, 0] + c * levelled[:, 1] + pose.y
+        world[:, 2] = levelled[:, 2] + pose.z
+        self.memory.update(world, pose.xy)
+        top = self.memory.window(pose.xy, pose.yaw, pose.z).reshape(-1)
+        top[np.isnan(top)] = -np.inf
+        return top
 
 
 class Points(CloudEncoder):
@@ -146,7 +179,7 @@ class Points(CloudEncoder):
             return _positions(_o3d_cloud(pts).farthest_point_down_sample(n))
         return pts[(np.arange(n) * len(pts)) // n]
 
-    def __call__(self, points: np.ndarray, roll: float, pitch: float) -> np.ndarray:
+    def __call__(self, points: np.ndarray, pose: Pose) -> np.ndarray:
         pts = self.select(self.visible_rover_points(points))
         out = np.zeros(self.shape, dtype=np.float32)
         m = len(pts)

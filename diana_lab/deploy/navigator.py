@@ -86,6 +86,11 @@ class Navigator:
         if "offset" not in outputs:
             raise ValueError(f"model '{self.model_path}': no 'offset' output (outputs: {outputs})")
 
+    def reset(self) -> None:
+        """Start a new traverse (a new goal): an ``elevation_map`` with memory forgets the last map. The
+        simulator resets it with every episode; a rover must call this whenever it takes a new goal."""
+        self.encoder.reset()
+
     # ------------------------------------------------------------------ steps (public for tests and tools)
     def observation(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> dict[str, np.ndarray]:
         """The policy's observation (unbatched), built as the env builds it."""
@@ -94,7 +99,7 @@ class Navigator:
         pts = check_cloud(cloud, drop_invalid)
         return {
             "goal": goal_vector(p, g, self.spec.distance_scale, self._low, self._high),
-            self.sensor_key: self.encoder(pts, p.roll, p.pitch),
+            self.sensor_key: self.encoder(pts, p),
         }
 
     def offset(self, obs: dict[str, np.ndarray]) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 Accepted values:
 
-* ``straight`` / ``astar`` / ``astar_receding`` / ``astar_local`` / ``astar_cone`` (``_memory``) -- the classical
+* ``straight`` / ``astar`` / ``astar_receding`` / ``astar_local`` / ``astar_cone`` (``_memory``) / ``astar_memory``
+  (12 m, the reference policy's imitation expert) -- the classical
   baselines (:mod:`diana_lab.evaluation.oracle`);
 * a path to a Stable-Baselines3 ``.zip`` (or a folder holding ``model.zip``); a ``vecnormalize.pkl`` beside
   it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
@@ -200,6 +201,8 @@ BASELINES: dict[str, Callable[[], Policy]] = {
     "astar_cone_memory": lambda: AStarOracle(
         spacing=0.8, knowledge_radius=8.0, knowledge_fov_deg=100.0, knowledge_memory=True
     ),
+    # the reference policy's imitation expert (train.imitation.expert=astar_memory, knowledge_radius 12 m)
+    "astar_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=12.0, knowledge_memory=True),
 }
 
 

@@ -26,6 +26,7 @@ the reference length SPL's definition asks for. The hazard-weighted path that th
 
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 from collections import OrderedDict
@@ -68,27 +69,41 @@ def _cell_costs(costmap: CostMap, weighted: bool) -> np.ndarray:
     return costmap.cost if weighted else np.where(costmap.free, 1.0, np.inf)
 
 
+@functools.lru_cache(maxsize=8)
+def _grid_edges(shape: tuple[int, int]) -> tuple[np.ndarray, ...]:
+    """Every 8-connected edge of a ``shape`` grid, sorted by source cell: ``(src, dst, side_a, side_b,
+    length_in_cells)``; ``side_a``/``side_b`` are the two cells a diagonal move cuts past (the source itself
+    for straight moves). Cached per shape: the maps an episode's expert re-searches every step share it."""
+    ny, nx = shape
+    index = np.arange(ny * nx).reshape(ny, nx)
+    parts = []
+    for diy, dix in _NEIGHBOURS:
+        src = _window(shape, -diy, -dix)  # cells whose neighbour (iy + diy, ix + dix) is on the grid
+        dst = _window(shape, diy, dix)
+        a, b = (index[dst[0], src[1]], index[src[0], dst[1]]) if diy and dix else (index[src], index[src])
+        n = index[src].size
+        parts.append((index[src].ravel(), index[dst].ravel(), a.ravel(), b.ravel(), np.full(n, math.hypot(diy, dix))))
+    src, dst, a, b, length = (np.concatenate(p) for p in zip(*parts))
+    order = np.argsort(src, kind="stable")
+    return tuple(np.ascontiguousarray(x[order]) for x in (src, dst, a, b, length))
+
+
 def _graph(costmap: CostMap, weighted: bool) -> csr_array:
-    """The cached sparse search graph (both directions of every edge)."""
+    """The cached sparse search graph (both directions of every edge, no corner cutting)."""
     key = ("graph", weighted)
     if key in costmap._cache:
         return costmap._cache[key]
-    free = costmap.free
-    cost = _cell_costs(costmap, weighted)
-    ny, nx = free.shape
-    index = np.arange(ny * nx).reshape(ny, nx)
-    rows, cols, weights = [], [], []
-    for diy, dix in _NEIGHBOURS:
-        src = _window(free.shape, -diy, -dix)  # cells whose neighbour (iy + diy, ix + dix) is on the grid
-        dst = _window(free.shape, diy, dix)
-        ok = free[src] & free[dst]
-        if diy and dix:  # no corner cutting: (iy + diy, ix) and (iy, ix + dix) must be free too
-            ok &= free[dst[0], src[1]] & free[src[0], dst[1]]
-        step = costmap.resolution * float(np.hypot(diy, dix))
-        rows.append(index[src][ok])
-        cols.append(index[dst][ok])
-        weights.append(step * 0.5 * (cost[src][ok] + cost[dst][ok]))
-    graph = csr_array((np.concatenate(weights), (np.concatenate(rows), np.concatenate(cols))), shape=(ny * nx, ny * nx))
+    free = costmap.free.ravel()
+    cost = _cell_costs(costmap, weighted).ravel()
+    src, dst, a, b, length = _grid_edges(costmap.shape)
+    # a diagonal move needs (iy + diy, ix) and (iy, ix + dix) free too: no corner cutting
+    ok = free[src] & free[dst] & free[a] & free[b]
+    s, d = src[ok], dst[ok]
+    weights = (costmap.resolution * 0.5) * length[ok] * (cost[s] + cost[d])
+    n = free.size
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(s, minlength=n), out=indptr[1:])
+    graph = csr_array((weights, d, indptr), shape=(n, n))  # edges are sorted by source already
     costmap._cache[key] = graph
     return graph
 

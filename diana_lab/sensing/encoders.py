@@ -11,6 +11,9 @@ mask channel says so).
   rover base, ``(clip(h, -c, c) / c + 1) / 2`` with ``c = height_clip`` (0.5 = level with the base) and
   :data:`UNKNOWN_HEIGHT` where the cell got no point; channel 1 is 1 for cells with points, 0 otherwise.
   The grid is rover-centred and heading-aligned but levelled (gravity up), so roll/pitch do not tilt it.
+  With ``memory: true`` the cells come from a world-frame map fused over the episode
+  (:class:`~diana_lab.height_memory.HeightMemory`), so what was seen stays known; :meth:`Encoder.reset`
+  (called by the sensor's ``reset``) clears it.
 * ``points`` ``(n_points, 4)``: the cloud in the rover frame down-sampled to at most ``n_points`` (voxel
   grid then an even subsample, or farthest-point sampling), xyz divided by ``max_range + |mount|`` into
   [-1, 1], column 3 the mask (1 real point, 0 padding; padded rows are all zero).
@@ -18,12 +21,15 @@ mask channel says so).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import open3d as o3d
 from gymnasium import spaces
 
 from diana_lab.config.sensing import ElevationMapConfig, PointsConfig, SensorConfig
 from diana_lab.config.validation import ConfigError
+from diana_lab.height_memory import HeightMemory
 from diana_lab.rotations import leveling_matrix
 from diana_lab.sensing.frame import SensorFrame
 
@@ -35,6 +41,7 @@ __all__ = [
     "Encoder",
     "PointsEncoder",
     "make_encoder",
+    "remembered_heights",
 ]
 
 NO_RETURN = 1.0  # depth_image value of a pixel without a return
@@ -63,6 +70,9 @@ class Encoder:
 
     space: spaces.Box
 
+    def reset(self) -> None:
+        """Start an episode (only stateful encodings have anything to forget)."""
+
     def __call__(self, frame: SensorFrame) -> np.ndarray:
         raise NotImplementedError
 
@@ -90,6 +100,15 @@ class ElevationMapEncoder(Encoder):
         self.cfg = cfg
         self.rows, self.cols = cfg.shape
         self.space = spaces.Box(0.0, 1.0, (2, self.rows, self.cols), np.float32)
+        self.memory = (
+            HeightMemory(cfg.cell_size, cfg.memory_radius, self.rows, self.cols, cfg.extent_forward, cfg.extent_side)
+            if cfg.memory
+            else None
+        )
+
+    def reset(self) -> None:
+        if self.memory is not None:
+            self.memory.reset()
 
     def _filter(self, points: np.ndarray) -> np.ndarray:
         c = self.cfg
@@ -108,18 +127,35 @@ class ElevationMapEncoder(Encoder):
         if len(pts):
             pts = pts @ leveling_matrix(frame.rpy).T.astype(np.float32)
         pts = self._filter(pts)
-        inv = 1.0 / c.cell_size
-        row = np.floor((c.extent_forward - pts[:, 0]) * inv).astype(np.int64)
-        col = np.floor((c.extent_side - pts[:, 1]) * inv).astype(np.int64)
-        ok = np.flatnonzero((row >= 0) & (row < rows) & (col >= 0) & (col < cols))
-        top = np.full(rows * cols, -np.inf, dtype=np.float32)
-        np.maximum.at(top, row.take(ok) * cols + col.take(ok), pts[:, 2].take(ok))  # per-cell max, no loop
+        if self.memory is not None:
+            top = remembered_heights(self.memory, pts, frame.position, float(frame.rpy[2]))
+        else:
+            inv = 1.0 / c.cell_size
+            row = np.floor((c.extent_forward - pts[:, 0]) * inv).astype(np.int64)
+            col = np.floor((c.extent_side - pts[:, 1]) * inv).astype(np.int64)
+            ok = np.flatnonzero((row >= 0) & (row < rows) & (col >= 0) & (col < cols))
+            top = np.full(rows * cols, -np.inf, dtype=np.float32)
+            np.maximum.at(top, row.take(ok) * cols + col.take(ok), pts[:, 2].take(ok))  # per-cell max, no loop
         known = top > -np.inf
         out = np.empty((2, rows * cols), dtype=np.float32)
         height = np.clip(top, -c.height_clip, c.height_clip) * (0.5 / c.height_clip) + 0.5
         out[0] = np.where(known, height, UNKNOWN_HEIGHT)
         out[1] = known
         return out.reshape(self.space.shape)
+
+
+def remembered_heights(memory: HeightMemory, levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
+    """Fuse a frame's levelled points (heading-aligned frame at the rover base) into ``memory``; the window
+    around the rover, flat, heights relative to the base and ``-inf`` where unknown."""
+    c, s = math.cos(yaw), math.sin(yaw)
+    world = np.empty_like(levelled)
+    world[:, 0] = c * levelled[:, 0] - s * levelled[:, 1] + position[0]
+    world[:, 1] = s * levelled[:, 0] + c * levelled[:, 1] + position[1]
+    world[:, 2] = levelled[:, 2] + position[2]
+    memory.update(world, position)
+    top = memory.window(position, yaw, float(position[2])).reshape(-1)
+    top[np.isnan(top)] = -np.inf
+    return top
 
 
 class PointsEncoder(Encoder):

@@ -66,9 +66,11 @@ class RaySensor:
         return len(self.caster)
 
     def reset(self, rng: np.random.Generator) -> None:
-        """Start an episode: every later noise draw comes from ``rng`` (the env's ``np_random``)."""
+        """Start an episode: every later noise draw comes from ``rng`` (the env's ``np_random``), and a
+        stateful encoding (``elevation_map.memory``) forgets the last episode's map."""
         self.rng = rng
         self.noise.reset(rng)
+        self.encoder.reset()
 
     def rays_world(self, position: np.ndarray, rpy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World ray origins and unit directions, ``(N, 3)`` each (new arrays), for a rover pose."""

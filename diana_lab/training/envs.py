@@ -20,7 +20,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv,
 
 from diana_lab import config as C
 from diana_lab.config.evaluation import EvalConfig
-from diana_lab.config.run import AlgoConfig, TrainConfig
+from diana_lab.config.run import AlgoConfig, ImitationConfig, TrainConfig
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.world import World
 
@@ -60,10 +60,11 @@ def shared_world(world_cfg: dict[str, Any]) -> World:
     return _WORLDS[key]
 
 
-def make_env(groups: dict[str, Any], render_mode: str | None = None, expert: str | None = None) -> gym.Env:
+def make_env(groups: dict[str, Any], render_mode: str | None = None, expert: ImitationConfig | None = None) -> gym.Env:
     """One env from plain env groups (module-level, so ``functools.partial(make_env, groups)`` pickles).
 
-    ``expert`` (a ``train.imitation.expert`` name) wraps it in :class:`~diana_lab.training.imitation.ExpertLabels`.
+    ``expert`` (the ``train.imitation`` config naming the expert) wraps it in
+    :class:`~diana_lab.training.imitation.ExpertLabels`.
 
     In a SubprocVecEnv worker, Ctrl-C is ignored: the main process handles it (checkpoint, then closing the
     workers); a worker that died of it first would turn the interrupt into a broken pipe in the main process.
@@ -93,7 +94,7 @@ def check_env(groups: dict[str, Any], seed: int) -> None:
         env.close()
 
 
-def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: str | None = None) -> VecEnv:
+def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: ImitationConfig | None = None) -> VecEnv:
     """``train.n_envs`` Monitor-wrapped envs; env ``i`` is seeded ``seed + i`` at its first reset.
 
     ``expert``: label every step for imitation (see :func:`make_env`)."""

@@ -35,19 +35,23 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from diana_lab.config.run import ImitationConfig
 from diana_lab.tracking.mlflow_run import Tracker
+from diana_lab.training.signals import raise_pending
 
 __all__ = ["ExpertLabels", "ImitationResult", "imitate", "make_expert"]
 
 LABEL_KEY = "expert_action"
 
 
-def make_expert(name: str) -> Any:
+def make_expert(cfg: ImitationConfig) -> Any:
     """The expert named by ``train.imitation.expert`` (a :class:`~diana_lab.evaluation.Policy`)."""
-    if name == "astar":
-        from diana_lab.evaluation.oracle import AStarOracle
+    from diana_lab.evaluation.oracle import AStarOracle
 
-        return AStarOracle(receding=True, spacing=0.8)  # 0.8: no tip-overs on the Mars-yard suite (0.95: 1 %)
-    raise ValueError(f"train.imitation.expert: unknown expert {name!r}; expected 'astar'")
+    # spacing 0.8: no tip-overs on the Mars-yard suite (0.95: 1 %)
+    if cfg.expert == "astar":
+        return AStarOracle(receding=True, spacing=0.8)
+    if cfg.expert == "astar_memory":
+        return AStarOracle(spacing=0.8, knowledge_radius=cfg.knowledge_radius, knowledge_memory=True)
+    raise ValueError(f"train.imitation.expert: unknown expert {cfg.expert!r}; expected one of 'astar', 'astar_memory'")
 
 
 class ExpertLabels(gym.Wrapper):
@@ -185,6 +189,7 @@ def imitate(
                 actions[~use_expert] = learner[~use_expert]
                 learner_steps += int((~use_expert).sum())
             obs, _, dones, infos = venv.step(actions)
+            raise_pending()  # a safe point for Ctrl-C / SIGTERM, as every RL step is (training.signals)
             result.steps += n_envs
             next_labels = []
             for i, done in enumerate(dones):

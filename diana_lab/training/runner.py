@@ -131,7 +131,7 @@ class TrainingRun:
         device = self.train_cfg.device
         imitation = self.train_cfg.imitation
         if self.resume is None:
-            expert = imitation.expert if imitation.enabled else None
+            expert = imitation if imitation.enabled else None
             self.venv = make_training_env(self.cfg, self.train_cfg, self.seed, expert=expert)
             if self.algo.normalize:
                 self.venv = wrap_normalize(self.venv, self.algo, self.algo.gamma)

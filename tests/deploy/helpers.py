@@ -74,13 +74,15 @@ def make_run(run_dir: Path, cfg, world: World | None = None, normalize: bool = T
 @dataclass
 class Recording:
     """Per step: the pose estimate (x, y, z, roll, pitch, yaw), the goal, the sensor-frame cloud, the env's
-    observation and the torch policy's waypoint (pose + ``WaypointMapping.offset``, before the map clamp)."""
+    observation and the torch policy's waypoint (pose + ``WaypointMapping.offset``, before the map clamp);
+    ``starts`` marks the first step of every episode (where a runtime with a map must reset it)."""
 
     poses: list[np.ndarray]
     goals: list[np.ndarray]
     clouds: list[np.ndarray]
     observations: list[dict[str, np.ndarray]]
     waypoints: np.ndarray
+    starts: list[bool]
 
 
 def sensor_frame_points(env: RoverNavEnv, frame) -> np.ndarray:
@@ -101,9 +103,11 @@ def record(env: RoverNavEnv, policy, n: int, seed: int = 0) -> Recording:
 
     env.sensor.capture = recording_capture
     try:
-        rec = Recording([], [], [], [], np.empty((n, 2)))
+        rec = Recording([], [], [], [], np.empty((n, 2)), [])
         obs, _ = env.reset(seed=seed)
+        start = True
         for i in range(n):
+            rec.starts.append(start)
             est, state = env.pose_estimate, env.dynamics.state
             rec.poses.append(np.array([*est.xy, state.position[2], est.roll, est.pitch, est.yaw]))
             rec.goals.append(env.goal.copy())
@@ -112,7 +116,8 @@ def record(env: RoverNavEnv, policy, n: int, seed: int = 0) -> Recording:
             action = policy.act(obs, env)
             rec.waypoints[i] = est.xy + env.mapping.offset(action, est.yaw)
             obs, _, terminated, truncated, _ = env.step(action)
-            if terminated or truncated:
+            start = terminated or truncated
+            if start:
                 obs, _ = env.reset()
         return rec
     finally:

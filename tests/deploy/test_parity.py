@@ -22,7 +22,11 @@ def replay(nav: Navigator, rec) -> dict[str, float]:
     """Max errors of the runtime against the recording: goal vector, encoding, waypoint."""
     key = nav.sensor_key
     err = {"goal": 0.0, "encoding": 0.0, "waypoint": 0.0}
-    for pose, goal, cloud, obs, want in zip(rec.poses, rec.goals, rec.clouds, rec.observations, rec.waypoints):
+    for pose, goal, cloud, obs, want, start in zip(
+        rec.poses, rec.goals, rec.clouds, rec.observations, rec.waypoints, rec.starts
+    ):
+        if start:
+            nav.reset()
         built = nav.observation(pose, goal, cloud)
         err["goal"] = max(err["goal"], float(np.max(np.abs(built["goal"] - obs["goal"]))))
         err["encoding"] = max(err["encoding"], float(np.max(np.abs(built[key] - obs[key]))))
@@ -53,6 +57,13 @@ CASES = {
         "action_space.min_distance=0.5",
         "algo=sac",
         "algo.buffer_size=64",
+    ],
+    # lidar + elevation map with memory: the runtime keeps the same episode map (reset at every episode start)
+    "lidar_elevation_memory": [
+        "sensor=lidar3d",
+        "sensor.encoding=elevation_map",
+        "sensor.elevation_map.memory=true",
+        "sensor.elevation_map.memory_radius=20",
     ],
     # depth camera + points (voxel then stride subsample, order-dependent), TD3, world-frame squares
     "camera_points_td3_world": [

@@ -75,12 +75,12 @@ def test_optical_frame_conversion():
 def test_depth_image_keeps_the_nearest_return_and_drops_what_the_sensor_cannot_see(nav):
     spec = nav.spec.sensor
     centre = np.array([[4.0, 0.0, 0.0]])
-    img = nav.encoder(np.vstack([centre, centre * 0.5, centre * 1.5]), 0.0, 0.0)[0]
+    img = nav.encoder(np.vstack([centre, centre * 0.5, centre * 1.5]), Pose.of(np.zeros(6)))[0]
     assert img.min() == pytest.approx(2.0 / spec.max_range)  # the nearest of three returns in one pixel
     assert np.sum(img < 1.0) == 1
     # too far, too near, behind, outside the field of view: all "no return"
     unseen = np.array([[spec.max_range + 1.0, 0, 0], [0.05, 0, 0], [-3.0, 0, 0], [1.0, 5.0, 0]])
-    assert np.all(nav.encoder(unseen, 0.0, 0.0) == 1.0)
+    assert np.all(nav.encoder(unseen, Pose.of(np.zeros(6))) == 1.0)
 
 
 @pytest.mark.parametrize(

@@ -67,3 +67,35 @@ def test_interrupt_saves_checkpoint_and_marks_run_killed(sig, code, tmp_path):
     assert len(ckpts) == 1 and ckpts[0].endswith("_steps.zip")
     steps = int(ckpts[0].rsplit("_", 2)[-2])
     assert 128 <= steps < 1_000_000
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, pytest.param(signal.SIGINT, marks=pytest.mark.slow)])
+def test_an_interrupt_during_imitation_stops_the_run_cleanly(sig, tmp_path):
+    # the imitation stage has its own loop (not SB3's): it must be a safe point for interrupts too
+    args = [
+        "algo=ppo",
+        *TINY,
+        *ALGO_TINY["ppo"],
+        "train.imitation.enabled=true",
+        "train.imitation.iterations=1000",
+        "train.imitation.steps_per_iteration=32",
+        "train.imitation.epochs=1",
+        *store_args(tmp_path),
+    ]
+    proc = run_subprocess(args, cwd=tmp_path)
+    seen = []
+    for line in proc.stderr:  # the imitation stage reports each iteration on stderr
+        seen.append(line)
+        if line.startswith("imitation 2/1000"):
+            break
+    assert proc.poll() is None, "".join(seen) + proc.communicate()[1]
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        raise
+    assert proc.returncode == {signal.SIGTERM: 143, signal.SIGINT: 130}[sig], err
+    assert "Traceback" not in err, err
+    _, found = runs(tmp_path)
+    assert [r.info.status for r in found] == ["KILLED"], err

@@ -23,8 +23,11 @@ def _groups(extra: list[str] | None = None) -> dict:
     return env_config(compose([*FLAT, *(extra or [])]))
 
 
-def test_labels_are_the_oracles_action_and_can_be_switched_off():
-    env = make_env(_groups(), expert="astar")
+@pytest.mark.parametrize("expert", ["astar", "astar_memory"])
+def test_labels_are_the_oracles_action_and_can_be_switched_off(expert):
+    env = make_env(_groups(), expert=ImitationConfig(enabled=True, expert=expert, knowledge_radius=6.0))
+    if expert == "astar_memory":  # the expert that knows only what lay near the rover, and remembers it
+        assert env.expert.knowledge_radius == 6.0 and env.expert.knowledge_memory
     assert isinstance(env, ExpertLabels)
     obs, info = env.reset(seed=3)
     label = info[LABEL_KEY]
@@ -46,7 +49,10 @@ def test_labels_are_the_oracles_action_and_can_be_switched_off():
 def _imitate(seed: int, steps: int, epochs: int):
     """A small PPO policy on flat ground after 3 DAgger iterations: ``(model, venv, cfg, result)``."""
     groups = _groups()
-    venv = VecNormalize(DummyVecEnv([lambda: make_env(groups, expert="astar") for _ in range(2)]), norm_reward=False)
+    venv = VecNormalize(
+        DummyVecEnv([lambda: make_env(groups, expert=ImitationConfig(enabled=True)) for _ in range(2)]),
+        norm_reward=False,
+    )
     venv.seed(seed)
     algo = validate(compose([*FLAT, "algo=ppo", "algo.net_arch=[32]", "algo.extractor.cnn_channels=[4]"]), ["algo"])
     model = build_model(algo["algo"], venv, seed=seed)
@@ -105,6 +111,7 @@ def test_runner_logs_the_imitation_stage(tmp_path):
         ("train.imitation.beta=1.5", "train.imitation.beta"),
         ("train.imitation.iterations=0", "train.imitation.iterations"),
         ("train.imitation.expert=human", "train.imitation.expert"),
+        ("train.imitation.knowledge_radius=0", "train.imitation.knowledge_radius"),
     ],
 )
 def test_bad_imitation_config_names_the_key(override, key):

@@ -1,0 +1,86 @@
+"""The ``elevation_map`` memory: a world-frame map fused over the episode, read as rover-centred windows."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from diana_lab.config import ConfigError
+from diana_lab.config.sensing import ElevationMapConfig
+from diana_lab.height_memory import HeightMemory
+from tests.sensing.conftest import box, make_sensor, plane_world
+
+MEMORY = ElevationMapConfig(
+    cell_size=0.25, extent_forward=6.0, extent_back=6.0, extent_side=6.0, voxel_size=0.0, memory=True
+)
+
+
+def _window_at(memory: HeightMemory, ahead: float, left: float) -> tuple[int, int]:
+    """The window cell holding a point ``ahead`` m in front and ``left`` m to the left of the rover."""
+    return int((6.0 - ahead) // memory.cell_size), int((6.0 - left) // memory.cell_size)
+
+
+def test_the_window_turns_with_the_heading_and_the_latest_frame_wins():
+    m = HeightMemory(0.25, 20.0, 48, 48, 6.0, 6.0)
+    m.update(np.array([[3.1, 0.1, 0.7]]), centre=np.zeros(2))  # 3 m east of the origin, 0.7 m high
+    east = m.window(np.zeros(2), 0.0, base_z=0.2)
+    assert east[_window_at(m, 3.1, 0.1)] == pytest.approx(0.5)  # relative to the base
+    assert np.isnan(east).sum() == east.size - 1  # everything else unknown
+    north = m.window(np.zeros(2), math.pi / 2, base_z=0.2)  # facing north, east is to the right
+    assert north[_window_at(m, 0.1, -3.1)] == pytest.approx(0.5)
+    m.update(np.array([[3.1, 0.1, 0.1]]), centre=np.zeros(2))  # seen again lower: dust gone, latest wins
+    assert m.window(np.zeros(2), 0.0, 0.2)[_window_at(m, 3.1, 0.1)] == pytest.approx(-0.1)
+    m.update(np.array([[30.0, 0.0, 5.0]]), centre=np.zeros(2))  # off the 20 m map: dropped, no error
+    assert np.isfinite(m.height).sum() == 1
+    assert np.isnan(m.window(np.array([26.0, 0.0]), 0.0, 0.0)).all()  # a window off the map is unknown
+    m.reset()
+    assert np.isnan(m.window(np.zeros(2), 0.0, 0.0)).all()
+
+
+def test_a_box_seen_once_stays_on_the_map_after_the_camera_turns_away():
+    world = plane_world(0.0, obstacles=[box((3.0, -0.5, 0.0), (3.5, 0.5, 0.3))])
+    cam = make_sensor("depth_camera", world, encoding="elevation_map", elevation_map=MEMORY)
+    plain = make_sensor(
+        "depth_camera",
+        world,
+        encoding="elevation_map",
+        elevation_map=ElevationMapConfig(**{**vars(MEMORY), "memory": False}),
+    )
+    rng = np.random.default_rng(0)
+    cam.reset(rng)
+    position = np.array([0.0, 0.0, 0.1])
+    facing = cam.observe(position, np.zeros(3))
+    row, col = _window_at(cam.encoder.memory, 3.05, 0.0)
+    assert facing[1, row, col] == 1.0 and facing[0, row, col] > 0.5  # the box's front face, above the base
+    turned = cam.observe(position, np.array([0.0, 0.0, math.pi]))  # now the box is 3 m behind
+    back_row, back_col = _window_at(cam.encoder.memory, -3.05, 0.0)
+    assert turned[1, back_row, back_col] == 1.0 and turned[0, back_row, back_col] == facing[0, row, col]
+    # without memory the rover turned away knows nothing behind it
+    plain.reset(rng)
+    plain.observe(position, np.zeros(3))
+    assert plain.observe(position, np.array([0.0, 0.0, math.pi]))[1, back_row, back_col] == 0.0
+    # a new episode starts with an empty map
+    cam.reset(rng)
+    assert cam.observe(position, np.array([0.0, 0.0, math.pi]))[1, back_row, back_col] == 0.0
+
+
+def test_the_map_stays_inside_the_space_over_a_drive_on_mars_yard(mars_yard):
+    lidar = make_sensor("lidar3d", mars_yard, encoding="elevation_map", elevation_map=MEMORY, noise="harsh")
+    lidar.reset(np.random.default_rng(3))
+    x0, _, y0, _ = mars_yard.bounds
+    known = []
+    for i in range(12):
+        x, y = x0 + 10 + 1.5 * i, y0 + 10 + 0.5 * i
+        obs = lidar.observe(np.array([x, y, float(mars_yard.height(x, y)) + 0.1]), np.array([0.05, -0.05, 0.3 * i]))
+        assert lidar.observation_space.contains(obs) and np.isfinite(obs).all()
+        known.append(obs[1].mean())
+    assert known[-1] > known[0]  # the map fills in as the rover drives
+
+
+def test_bad_memory_settings_name_the_key():
+    with pytest.raises(ConfigError, match=r"sensor\.elevation_map\.memory_radius"):
+        ElevationMapConfig(memory=True, memory_radius=0.0)
+    with pytest.raises(ConfigError, match=r"sensor\.elevation_map\.memory"):
+        ElevationMapConfig(memory="yes")
