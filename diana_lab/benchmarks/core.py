@@ -146,7 +146,9 @@ class BenchContext:
     """The composed config, the mode (quick or full) and what several measurements share (world, poses).
 
     Every measurement uses the composed config's groups (defaults: mars_yard, Jackal, the 64 x 48 depth
-    camera), with open3d casts pinned to one thread (``sensor.nthreads=1``).
+    camera), with open3d casts pinned to one thread (``sensor.nthreads=1``; the heightfield caster always
+    runs on one). The ray-casting backend is the run's ``sensor.backend`` (e.g. ``sensor.backend=open3d`` on
+    the command line), also for the figures that pick their own sensor option.
     """
 
     def __init__(self, cfg: DictConfig) -> None:
@@ -159,6 +161,7 @@ class BenchContext:
         if self.repeats < 1:
             raise ValueError(f"repeats: expected a positive integer, got {self.repeats}")
         self.seed = int(cfg.get("seed", 0))
+        self.backend = str(self.cfg.sensor.get("backend", "heightfield"))
 
     def size(self, full: int, quick: int) -> int:
         """Operations per timed batch in the current mode."""
@@ -179,8 +182,9 @@ class BenchContext:
                     node = C.compose([], config_name=f"{group}/{value}")[group]
                     with open_dict(cfg):
                         cfg[group] = node
-                        if group == "sensor":
+                        if group == "sensor":  # a new sensor option keeps the run's caster settings
                             cfg.sensor.nthreads = 1
+                            cfg.sensor.backend = self.backend
                 else:
                     OmegaConf.update(cfg, key, yaml.safe_load(value), force_add=False)
         return env_config(cfg)

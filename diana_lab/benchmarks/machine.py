@@ -19,6 +19,7 @@ __all__ = ["cpu_model", "library_versions", "load_average", "machine_info", "pin
 LIBRARIES = {  # JSON key -> distribution names to try (open3d ships as open3d or open3d-cpu)
     "numpy": ("numpy",),
     "open3d": ("open3d-cpu", "open3d"),
+    "numba": ("numba",),
     "pybullet": ("pybullet",),
     "torch": ("torch",),
     "stable_baselines3": ("stable_baselines3", "stable-baselines3"),

@@ -1,9 +1,11 @@
 """Sensor figures: a depth frame to its encoded observation, against PyBullet's ray test and TinyRenderer.
 
 All on one thread, over the same random rover poses (standing on the terrain of the configured world) and
-the same rays: ``sensor.rays_world`` gives PyBullet exactly the rays open3d casts. Our figure includes the
-encoding; PyBullet's include only the cast (``rayTestBatch``, with the Python list conversion any caller
-pays) or the render and the depth-buffer conversion, so the comparison favours the anchors.
+the same rays: ``sensor.rays_world`` gives PyBullet exactly the rays our caster casts. Our figure includes
+the encoding; PyBullet's include only the cast (``rayTestBatch``, with the Python list conversion any caller
+pays) or the render and the depth-buffer conversion, so the comparison favours the anchors. Our casts use
+the run's ``sensor.backend`` (``heightfield`` by default, ``sensor.backend=open3d`` for the reference); the
+figures' notes name it.
 """
 
 from __future__ import annotations
@@ -44,6 +46,13 @@ def _batches(ctx: BenchContext, size: int) -> Any:
 
 def _ms_per(seconds: float, count: int) -> float:
     return seconds / count * 1e3
+
+
+def _caster(sensor: Any) -> str:
+    """What casts the sensor's rays, for a figure's note."""
+    if sensor.caster.backend == "open3d":
+        return "open3d RaycastingScene"
+    return "heightfield ray marcher (numba)"
 
 
 class TinyRendererDepth:
@@ -96,13 +105,13 @@ class TinyRendererDepth:
     "sensor_ms_tinyrenderer",
 )
 def sensor_vs_pybullet(ctx: BenchContext) -> list[Figure]:
-    """Interleaved per repeat over one batch of poses: open3d frame -> ``depth_image``, then PyBullet's
-    ray test of the same rays (heightfield terrain, then the scene as one mesh), then TinyRenderer."""
+    """Interleaved per repeat over one batch of poses: our frame -> ``depth_image``, then PyBullet's ray
+    test of the same rays (heightfield terrain, then the scene as one mesh), then TinyRenderer."""
     from diana_lab.sensing.pybullet_reference import PyBulletRayCaster
 
     sensor = _sensor(ctx, "sensor=depth_camera", "sensor.encoding=depth_image")
     max_range = float(sensor.cfg.max_range)
-    per, inner = ctx.size(24, 4), 4  # PyBullet frames per repeat; open3d loops the batch `inner` times
+    per, inner = ctx.size(24, 4), 4  # PyBullet frames per repeat; ours loop the batch `inner` times
     batches = _batches(ctx, per)
     refs = {t: PyBulletRayCaster(ctx.world, terrain=t, num_threads=1) for t in ("heightfield", "mesh")}
     tiny = TinyRendererDepth(refs["heightfield"].client, sensor.cfg)
@@ -147,8 +156,7 @@ def sensor_vs_pybullet(ctx: BenchContext) -> list[Figure]:
         col("sensor_ms"),
         batch=f"{per * inner} frames ({per} poses x {inner})",
         target=SENSOR_TARGET,
-        note=f"open3d RaycastingScene, 1 thread, {sensor.image_shape[1]}x{sensor.image_shape[0]} "
-        f"({rays}) -> depth_image",
+        note=f"{_caster(sensor)}, 1 thread, {sensor.image_shape[1]}x{sensor.image_shape[0]} ({rays}) -> depth_image",
     )
     hf = figure_from_samples(
         "sensor_ms_pybullet_raytest",
@@ -213,7 +221,7 @@ def _frame_figure(
         [s[0] for s in samples],
         batch=f"{frames} frames",
         target=target,
-        note=f"{what}, 1 thread ({sensor.n_rays} rays)",
+        note=f"{what}, {_caster(sensor)}, 1 thread ({sensor.n_rays} rays)",
         extra={"capture_ms": capture.value},
     )
 

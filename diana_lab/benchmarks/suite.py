@@ -109,7 +109,10 @@ def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
         "machine": machine,
         "versions": library_versions(),
         "threads": threads,
-        "config": {g: str(OmegaConf.select(cfg, f"{g}.name")) for g in ("world", "robot", "sensor", "algo")},
+        "config": {
+            **{g: str(OmegaConf.select(cfg, f"{g}.name")) for g in ("world", "robot", "sensor", "algo")},
+            "sensor_backend": ctx.backend,  # the ray caster every sensor figure used
+        },
         "anchors": ANCHORS,
         "figures": figures,
         "errors": {k: f["error"] for k, f in figures.items() if f.get("error")},

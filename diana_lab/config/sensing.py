@@ -16,6 +16,7 @@ from diana_lab.config.store import register
 from diana_lab.config.validation import ConfigError, in_range, length, non_negative, one_of, ordered, positive
 
 ENCODINGS = ("depth_image", "elevation_map", "points")
+BACKENDS = ("heightfield", "open3d")  # ray casters: diana_lab/sensing/heightfield_cast.py, open3d RaycastingScene
 NOISE_PRESETS = ("none", "realistic", "harsh")  # their numbers live in diana_lab/sensing/noise.py
 POINT_METHODS = ("voxel", "fps")
 MAX_RAYS = 1 << 20  # a frame of more rays than this is a typo, not a sensor
@@ -95,7 +96,17 @@ class PointsConfig:
 
 @dataclass
 class SensorConfig:
-    """Keys common to every ray-cast sensor."""
+    """Keys common to every ray-cast sensor.
+
+    ``backend`` picks the ray caster; both hit the same triangles, and their ranges differ by open3d's float32
+    rounding (tests: within 1e-4 m, tests/sensing/test_heightfield_cast.py):
+
+    * ``heightfield`` (default): an exact numba ray marcher over the terrain grid plus the obstacle meshes
+      (:mod:`diana_lab.sensing.heightfield_cast`), always one thread (``nthreads`` is ignored). Its first
+      use in a fresh install compiles it (a few seconds, then cached in ``__pycache__``).
+    * ``open3d``: open3d's ``RaycastingScene`` (Embree) over ``World.scene_mesh``, the reference; it runs on
+      ``nthreads`` threads.
+    """
 
     _target_: str = MISSING
     name: str = MISSING
@@ -106,7 +117,8 @@ class SensorConfig:
     noise: str = "none"  # preset: none | realistic | harsh
     noise_level: float = 1.0  # scales every amplitude and probability of the preset
     encoding: str = "depth_image"  # depth_image | elevation_map | points
-    nthreads: int = 1  # ray-casting threads; 0 lets open3d use every core
+    backend: str = "heightfield"  # heightfield | open3d: the ray caster (see above)
+    nthreads: int = 1  # open3d's ray-casting threads; 0 lets open3d use every core (heightfield: always 1)
     elevation_map: ElevationMapConfig = field(default_factory=ElevationMapConfig)
     points: PointsConfig = field(default_factory=PointsConfig)
 
@@ -121,6 +133,7 @@ class SensorConfig:
         one_of("sensor.noise", self.noise, NOISE_PRESETS)
         non_negative("sensor.noise_level", self.noise_level)
         one_of("sensor.encoding", self.encoding, ENCODINGS)
+        one_of("sensor.backend", self.backend, BACKENDS)
         if isinstance(self.nthreads, bool) or not isinstance(self.nthreads, int) or self.nthreads < 0:
             raise ConfigError(f"sensor.nthreads: expected an integer >= 0, got {self.nthreads!r}")
 

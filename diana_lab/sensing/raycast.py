@@ -1,27 +1,39 @@
-"""Casting one fixed bundle of rays against a world's scene mesh with open3d's ``RaycastingScene``.
+"""Casting one fixed bundle of rays against a world's static scene, with one of two backends.
+
+``backend="heightfield"`` (the default) is the exact numba ray marcher of
+:mod:`diana_lab.sensing.heightfield_cast`: it walks the terrain grid and tests the obstacle meshes, on one
+thread, and stops rays at ``max_range``. ``backend="open3d"`` casts against ``World.scene_mesh`` with
+open3d's ``RaycastingScene`` (Embree), the reference it is tested against. Both return the same ranges.
 
 Why it looks the way it does:
 
-* The Embree scene behind ``RaycastingScene`` cannot be pickled, and ``SubprocVecEnv`` pickles the env
-  (and so its sensor) into each worker. The scene is therefore built lazily on first use, dropped by
-  ``__getstate__``, and shared by every caster of the same :class:`World` object in one process
-  (a weak-key cache, so it goes away with the world).
+* Neither scene travels with the caster: ``SubprocVecEnv`` pickles the env (and so its sensor) into each
+  worker, and the Embree scene behind ``RaycastingScene`` cannot be pickled. The scene is therefore built
+  lazily on first use, dropped by ``__getstate__``, and shared by every caster of the same :class:`World`
+  object in one process (a weak-key cache, so it goes away with the world).
 * The ray directions are fixed in the rover frame; a frame only rotates them and sets the origin. Both are
-  written in place (one small matmul) into one ``(N, 6)`` float32 buffer that an open3d tensor views
-  without copying (``Tensor.from_numpy``), so a frame allocates nothing on the Python side before the cast.
-* ``nthreads=1`` by default: vectorised envs already run one env per core, and more threads per cast
-  only contend with them.
+  written in place (one small matmul) into one ``(N, 6)`` float32 buffer, which the heightfield kernel
+  reads and an open3d tensor views without copying (``Tensor.from_numpy``), so both backends cast the
+  very same float32 rays and a frame allocates nothing on the Python side before the cast.
+* ``nthreads=1`` by default for open3d: vectorised envs already run one env per core, and more threads per
+  cast only contend with them. The heightfield kernel is always single-threaded.
 """
 
 from __future__ import annotations
 
+import math
 import weakref
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import open3d as o3d
 
+from diana_lab.config.sensing import BACKENDS
+from diana_lab.config.validation import one_of
 from diana_lab.sim.world import World
+
+if TYPE_CHECKING:  # imported on first use: numba takes ~0.3 s to import, and encoders-only users never cast
+    from diana_lab.sensing.heightfield_cast import HeightfieldScene
 
 __all__ = ["RayCaster", "scene_for"]
 
@@ -46,12 +58,24 @@ class RayCaster:
     """Casts ``directions`` (unit vectors in the rover frame, ``(N, 3)``) from a moving sensor.
 
     :meth:`cast` returns the hit distance along every ray (``inf`` where nothing was hit); with unit
-    directions that is the range.
+    directions that is the range. ``backend`` is ``"heightfield"`` or ``"open3d"`` (see the module);
+    ``max_range`` lets the heightfield backend stop rays early (hits beyond it come back as ``inf``; open3d
+    casts to infinity either way, and the sensor discards returns beyond its range itself).
     """
 
-    def __init__(self, world: World, directions: np.ndarray, nthreads: int = 1) -> None:
+    def __init__(
+        self,
+        world: World,
+        directions: np.ndarray,
+        nthreads: int = 1,
+        backend: str = "heightfield",
+        max_range: float = math.inf,
+    ) -> None:
+        one_of("sensor.backend", backend, BACKENDS)
         self.world = world
         self.nthreads = int(nthreads)
+        self.backend = backend
+        self.max_range = float(max_range)
         self.directions = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
         self.directions.setflags(write=False)
         self._rays = np.zeros((len(self.directions), 6), dtype=np.float32)
@@ -59,7 +83,7 @@ class RayCaster:
         # directions (a matmul into the strided half of the buffer took 5x longer)
         self._basis = np.hstack([np.ones((len(self.directions), 1), np.float32), self.directions])
         self._affine = np.zeros((4, 6), dtype=np.float32)
-        self._scene: o3d.t.geometry.RaycastingScene | None = None
+        self._scene: o3d.t.geometry.RaycastingScene | HeightfieldScene | None = None
         self._rays_t: o3d.core.Tensor | None = None
 
     def __len__(self) -> int:
@@ -86,8 +110,14 @@ class RayCaster:
         return np.matmul(self._basis, self._affine, out=self._rays)
 
     def cast(self, origin: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-        """Hit distance of every ray, ``(N,)`` float32, ``inf`` for no hit (a fresh array from open3d)."""
+        """Hit distance of every ray, ``(N,)`` float32, ``inf`` for no hit (a fresh array)."""
         self.rays(origin, rotation)
+        if self.backend == "heightfield":
+            if self._scene is None:
+                from diana_lab.sensing.heightfield_cast import heightfield_for
+
+                self._scene = heightfield_for(self.world)
+            return self._scene.cast(self._rays, self.max_range)
         if self._scene is None:
             self._scene = scene_for(self.world, self.nthreads)
         if self._rays_t is None:

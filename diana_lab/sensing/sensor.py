@@ -41,8 +41,12 @@ class RaySensor:
         directions = pattern.reshape(-1, 3) @ mount_rotation.T  # rover frame
         self.mount = np.asarray(cfg.mount_xyz, dtype=np.float64)
         self.axis_cos = self.optical_axis_cos(pattern)
-        self.caster = RayCaster(world, directions, cfg.nthreads)
         self.noise = NoiseModel(cfg.noise, cfg.noise_level, self.image_shape, cfg.min_range)
+        # the heightfield backend may stop rays at max_range, but only without noise: the noise model draws
+        # one range error per hit (and can pull a hit beyond max_range back in), so a noisy sensor gets all
+        # hits, as with open3d, and the same frames for the same seed with either backend
+        cast_range = math.inf if self.noise.active else float(cfg.max_range)
+        self.caster = RayCaster(world, directions, cfg.nthreads, backend=cfg.backend, max_range=cast_range)
         self.encoder: Encoder = make_encoder(cfg, self.image_shape, self.axis_cos)
         self.rng = np.random.default_rng(0)  # replaced by reset(); keeps capture() usable before it
         self._mount32 = self.mount.astype(np.float32)
