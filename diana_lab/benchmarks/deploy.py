@@ -1,14 +1,15 @@
 """Deployment figures: the onboard policy's per-call latency in the ONNX runtime (:mod:`diana_lab.deploy`).
 
 The policy is the shipped reference policy (``policy=pretrained``, the one issue 10's target names) with the
-sensor and encoding it was trained on; without it (a fresh checkout before one is trained), a PPO policy of
-the configured architecture on the kinematic depth-camera env (untrained: latency does not depend on the
-weights). Either is exported by :func:`diana_lab.deploy.export.export_policy` to a temporary ``policy.onnx``
-and loaded by :class:`diana_lab.deploy.Navigator` on one onnxruntime thread; the note says which it was.
+sensor and encoding it was trained on; without it, an untrained PPO of the reference recipe
+(``conf/experiment/reference.yaml``: the same lidar, elevation map with the episode's memory and network;
+latency does not depend on the weights). Either is exported by :func:`diana_lab.deploy.export.export_policy`
+to a temporary ``policy.onnx`` and loaded by :class:`diana_lab.deploy.Navigator` on one onnxruntime thread;
+the note says which it was.
 Each repeat is one :func:`diana_lab.deploy.measure_latency` run (``Navigator.next_waypoint``: goal vector and
 encoding of a synthetic flat-ground cloud, then inference); the figures are the medians over the repeats of
 each run's p50 and p99 of the per-call times (p99 is a tail of single calls, not of batch averages).
-Targets (from :mod:`diana_lab.deploy.latency`): <= 1 ms median and <= 2 ms p99 for the default depth camera.
+Targets (issue 10): <= 1 ms median and <= 2 ms p99 for the reference policy.
 
 Without ``diana_lab.deploy`` or onnxruntime both keys are null with a note saying so.
 """
@@ -23,8 +24,6 @@ from typing import Any
 import numpy as np
 
 from diana_lab.benchmarks.core import BenchContext, Figure, Target, figure_from_samples, measurement, repeat
-from diana_lab.benchmarks.envs import DEPTH
-from diana_lab.benchmarks.training import ppo_config
 
 __all__ = ["policy_latency"]
 
@@ -58,28 +57,32 @@ def _reference_navigator(folder: Path) -> Any:
     return Navigator.from_files(path, threads=1)
 
 
-def _navigator(ctx: BenchContext, folder: Path) -> Any:
-    """Export an untrained PPO policy of the configured architecture and load it as the rover would."""
+def _recipe_navigator(seed: int, folder: Path) -> Any:
+    """Export an untrained PPO of the reference recipe (``+experiment=reference``: its lidar, its encoding
+    with the episode map, its network) and load it as the rover would: the reference policy's latency before
+    its weights exist (latency does not depend on the weights)."""
     from stable_baselines3.common.vec_env import DummyVecEnv
 
     from diana_lab.agents.factory import build_model
+    from diana_lab.config import compose, to_object
     from diana_lab.deploy import Navigator
     from diana_lab.deploy.export import export_policy
-    from diana_lab.training.envs import make_env
+    from diana_lab.training.envs import env_config, make_env
 
-    groups = ctx.env_groups("dynamics=kinematic", *DEPTH)
+    cfg = compose(["+experiment=reference"])
+    groups = env_config(cfg)
     venv = DummyVecEnv([lambda: make_env(groups)])
     try:
-        model = build_model(ppo_config(ctx), venv, ctx.seed, "cpu")
+        model = build_model(to_object("algo", cfg.algo), venv, seed, "cpu")
         path = folder / "policy.onnx"
         export_policy(
             model,
             None,
-            ctx.typed("sensor", *DEPTH),
-            ctx.typed("action_space"),
-            ctx.typed("episode"),
+            to_object("sensor", cfg.sensor),
+            to_object("action_space", cfg.action_space),
+            to_object("episode", cfg.episode),
             path,
-            source={"label": "benchmark (untrained PPO)"},
+            source={"label": "benchmark (untrained PPO of the reference recipe)"},
         )
     finally:
         venv.close()
@@ -95,9 +98,10 @@ def policy_latency(ctx: BenchContext) -> list[Figure]:
     calls = ctx.size(2000, 300)
     with tempfile.TemporaryDirectory(prefix="diana_bench_") as folder:
         nav = _reference_navigator(Path(folder))
-        which = "the shipped reference policy" if nav is not None else "an untrained PPO of the configured architecture"
+        which = "the shipped reference policy"
         if nav is None:
-            nav = _navigator(ctx, Path(folder))
+            nav = _recipe_navigator(ctx.seed, Path(folder))
+            which = "an untrained PPO of the reference recipe (+experiment=reference; no policy shipped yet)"
         runs = repeat(lambda: measure_latency(nav, n=calls, warmup=0), ctx.repeats)
     split = {
         "encode_p50_ms": float(np.median([r["encode_p50"] for r in runs])),
