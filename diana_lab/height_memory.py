@@ -80,6 +80,21 @@ class HeightMemory:
         self.height[cell] = self._top[cell]
         self._top[cell] = -np.inf
 
+    def fuse(self, levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
+        """One frame of an ``elevation_map`` encoder: ``levelled`` points ``(N, 3)`` in the heading-aligned,
+        gravity-up frame at the rover base, the base's world ``position`` (x, y, z) and ``yaw``. Updates the
+        map and returns the window around the rover, flat, heights relative to the base, ``-inf`` unknown."""
+        c, s = math.cos(yaw), math.sin(yaw)
+        world = np.empty_like(levelled)
+        world[:, 0] = c * levelled[:, 0] - s * levelled[:, 1] + position[0]
+        world[:, 1] = s * levelled[:, 0] + c * levelled[:, 1] + position[1]
+        world[:, 2] = levelled[:, 2] + position[2]
+        xy = np.array([position[0], position[1]], dtype=np.float64)
+        self.update(world, xy)
+        top = self.window(xy, yaw, float(position[2])).reshape(-1)
+        top[np.isnan(top)] = -np.inf
+        return top
+
     def window(self, xy: np.ndarray, yaw: float, base_z: float) -> np.ndarray:
         """``(rows, cols)`` heights relative to ``base_z`` around world ``xy``, heading ``yaw``; NaN unknown."""
         rows, cols = self.shape

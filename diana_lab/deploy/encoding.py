@@ -20,7 +20,6 @@ field of view). An ``elevation_map`` trained with ``memory: true`` keeps the epi
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
@@ -131,7 +130,7 @@ class ElevationMap(CloudEncoder):
             pts = pts @ leveling_matrix((pose.roll, pose.pitch, 0.0)).T.astype(np.float32)
         pts = self._filter(pts)
         if self.memory is not None:
-            top = self._remembered(pts, pose)
+            top = self.memory.fuse(pts, (pose.x, pose.y, pose.z), pose.yaw)
         else:
             inv = 1.0 / self.cell_size
             row = np.floor((self.extent_forward - pts[:, 0]) * inv).astype(np.int64)
@@ -145,17 +144,6 @@ class ElevationMap(CloudEncoder):
         out[0] = np.where(known, height, self.unknown_height)
         out[1] = known
         return out.reshape(self.shape)
-
-    def _remembered(self, levelled: np.ndarray, pose: Pose) -> np.ndarray:
-        c, s = math.cos(pose.yaw), math.sin(pose.yaw)
-        world = np.empty_like(levelled)
-        world[:, 0] = c * levelled[:, 0] - s * levelled[:, 1] + pose.x
-        world[:, 1] = s * levelled[:, 0] + c * levelled[:, 1] + pose.y
-        world[:, 2] = levelled[:, 2] + pose.z
-        self.memory.update(world, pose.xy)
-        top = self.memory.window(pose.xy, pose.yaw, pose.z).reshape(-1)
-        top[np.isnan(top)] = -np.inf
-        return top
 
 
 class Points(CloudEncoder):

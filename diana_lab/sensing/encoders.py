@@ -21,8 +21,6 @@ mask channel says so).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import open3d as o3d
 from gymnasium import spaces
@@ -41,7 +39,6 @@ __all__ = [
     "Encoder",
     "PointsEncoder",
     "make_encoder",
-    "remembered_heights",
 ]
 
 NO_RETURN = 1.0  # depth_image value of a pixel without a return
@@ -128,7 +125,7 @@ class ElevationMapEncoder(Encoder):
             pts = pts @ leveling_matrix(frame.rpy).T.astype(np.float32)
         pts = self._filter(pts)
         if self.memory is not None:
-            top = remembered_heights(self.memory, pts, frame.position, float(frame.rpy[2]))
+            top = self.memory.fuse(pts, frame.position, float(frame.rpy[2]))
         else:
             inv = 1.0 / c.cell_size
             row = np.floor((c.extent_forward - pts[:, 0]) * inv).astype(np.int64)
@@ -142,20 +139,6 @@ class ElevationMapEncoder(Encoder):
         out[0] = np.where(known, height, UNKNOWN_HEIGHT)
         out[1] = known
         return out.reshape(self.space.shape)
-
-
-def remembered_heights(memory: HeightMemory, levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
-    """Fuse a frame's levelled points (heading-aligned frame at the rover base) into ``memory``; the window
-    around the rover, flat, heights relative to the base and ``-inf`` where unknown."""
-    c, s = math.cos(yaw), math.sin(yaw)
-    world = np.empty_like(levelled)
-    world[:, 0] = c * levelled[:, 0] - s * levelled[:, 1] + position[0]
-    world[:, 1] = s * levelled[:, 0] + c * levelled[:, 1] + position[1]
-    world[:, 2] = levelled[:, 2] + position[2]
-    memory.update(world, position)
-    top = memory.window(position, yaw, float(position[2])).reshape(-1)
-    top[np.isnan(top)] = -np.inf
-    return top
 
 
 class PointsEncoder(Encoder):
