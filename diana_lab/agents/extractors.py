@@ -1,7 +1,8 @@
 """One SB3 features extractor for every observation the env can produce, dispatching on the dict keys.
 
 ``goal`` goes through an MLP; the sensor key through the encoder made for it: a CNN for ``depth_image``, a CNN
-(or an MLP) for ``elevation_map``, a masked PointNet for ``points``. The features are concatenated and fed to
+(or an MLP, or the value-iteration planning network of :mod:`diana_lab.agents.planner`, which also reads the
+goal) for ``elevation_map``, a masked PointNet for ``points``. The features are concatenated and fed to
 the policy/value heads (``algo.net_arch``). Because it reads the keys of the observation space, one
 ``policy_kwargs`` works for every sensor: swapping ``sensor=`` never needs a policy change.
 """
@@ -17,6 +18,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
 from diana_lab.agents.encoders import ImageCNN, PointNet, mlp
+from diana_lab.agents.planner import ValueIterationNet
 from diana_lab.config.validation import ConfigError
 
 __all__ = ["SENSOR_KEYS", "RoverExtractor"]
@@ -32,8 +34,9 @@ class RoverExtractor(BaseFeaturesExtractor):
         goal_hidden: widths of the goal MLP.
         cnn_channels, cnn_pool: the image CNN's convolution widths and pooled grid (rows, cols).
         sensor_features: output width of every sensor encoder.
-        elevation_encoder: ``"cnn"`` or ``"mlp"`` (flattened grid) for ``elevation_map``.
+        elevation_encoder: ``"cnn"``, ``"mlp"`` (flattened grid) or ``"vin"`` for ``elevation_map``.
         point_hidden: widths of PointNet's shared per-point MLP.
+        planner: :class:`ValueIterationNet` arguments besides the map's shape (``elevation_encoder="vin"``).
     """
 
     def __init__(
@@ -45,6 +48,7 @@ class RoverExtractor(BaseFeaturesExtractor):
         sensor_features: int = 128,
         elevation_encoder: str = "cnn",
         point_hidden: Sequence[int] = (64, 128),
+        planner: dict | None = None,
     ) -> None:
         if not isinstance(observation_space, gym.spaces.Dict):
             raise ConfigError(f"algo.extractor: expected a Dict observation space, got {observation_space}")
@@ -55,6 +59,17 @@ class RoverExtractor(BaseFeaturesExtractor):
             if key == "goal":
                 encoders[key] = mlp(int(np.prod(shape)), goal_hidden)
                 dims[key] = goal_hidden[-1]
+            elif key == "elevation_map" and elevation_encoder == "vin":
+                if len(shape) != 3 or not planner:
+                    raise ConfigError(
+                        f"algo.extractor: the vin encoder needs a (C, H, W) map and the planner's geometry, "
+                        f"got shape {shape} and planner={planner!r}"
+                    )
+                try:
+                    encoders[key] = ValueIterationNet(shape[0], shape[1], shape[2], out_dim=sensor_features, **planner)
+                except ValueError as exc:
+                    raise ConfigError(f"algo.extractor.planner: {exc}") from exc
+                dims[key] = sensor_features
             elif key == "depth_image" or (key == "elevation_map" and elevation_encoder == "cnn"):
                 if len(shape) != 3:
                     raise ConfigError(f"algo.extractor: '{key}' must be (C, H, W), got shape {shape}")
@@ -81,5 +96,8 @@ class RoverExtractor(BaseFeaturesExtractor):
         parts = []
         for key, encoder in self.encoders.items():
             x = observations[key]
-            parts.append(encoder(x.flatten(1) if key == "goal" else x))
+            if isinstance(encoder, ValueIterationNet):
+                parts.append(encoder(x, observations["goal"].flatten(1)))
+            else:
+                parts.append(encoder(x.flatten(1) if key == "goal" else x))
         return torch.cat(parts, dim=1)

@@ -40,6 +40,16 @@ def policy_kwargs(cfg: AlgoConfig) -> dict[str, Any]:
         "net_arch": list(cfg.net_arch),
         "normalize_images": False,  # depth images are already in [0, 1] (float32, not uint8)
     }
+    if ext.elevation_encoder == "vin":
+        p = ext.planner
+        kwargs["features_extractor_kwargs"]["planner"] = {
+            "pool": p.pool,
+            "hidden": p.hidden,
+            "actions": p.actions,
+            "iterations": p.iterations,
+            "patch": p.patch,
+            **p.geometry(),
+        }
     kwargs.update(dict(cfg.policy_kwargs))
     return kwargs
 

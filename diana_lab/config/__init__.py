@@ -87,6 +87,8 @@ def to_object(group: str, node: Any) -> Any:
         raise ConfigError(f"{group}: expected a config mapping or an option name, got {type(node).__name__}")
     schema = _schema_for(group, node)
     try:
+        if node._get_parent() is not None:  # a group of a composed config: resolve its ${...} against the root
+            node = OmegaConf.create(OmegaConf.to_container(node, resolve=True))
         merged = OmegaConf.merge(OmegaConf.structured(schema), node)
         return OmegaConf.to_object(merged)
     except ConfigError:

@@ -20,7 +20,8 @@ from diana_lab.config.validation import ConfigError, in_range, non_negative, one
 VEC_ENVS = ("dummy", "subproc")
 # torch device strings SB3 accepts ("auto": cuda when available); checked here, not by torch deep in the run
 DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
-ELEVATION_ENCODERS = ("cnn", "mlp")
+ELEVATION_ENCODERS = ("cnn", "mlp", "vin")
+GEOMETRY_KEYS = ("cell_size", "extent_forward", "extent_side", "distance_scale")
 
 # algo keys that configure the runner / policy rather than being constructor arguments of the SB3 class
 NON_SB3_KEYS = frozenset(
@@ -57,6 +58,45 @@ def _layers(key: str, value: list[int]) -> None:
 
 
 @dataclass
+class PlannerConfig:
+    """The value-iteration network of :mod:`diana_lab.agents.planner` (``elevation_encoder: vin``).
+
+    The geometry keys must describe the map the sensor encodes and the goal vector the env observes; the
+    reference recipe interpolates them from ``sensor.elevation_map`` and ``episode`` so they cannot drift apart.
+    """
+
+    pool: int = 3  # map cells per planning cell (per side)
+    hidden: int = 8  # hazard feature channels
+    actions: int = 8  # Q channels per value-iteration backup
+    iterations: int = 20  # backups: the plan's reach in planning cells
+    patch: int = 2  # half-width (planning cells) of the block of values round the rover the heads read
+    # the map's geometry and the goal scaling; set them by interpolation (conf/experiment/reference.yaml):
+    # cell_size: ${sensor.elevation_map.cell_size}, ..., distance_scale: ${episode.distance_scale}
+    cell_size: float | None = None
+    extent_forward: float | None = None
+    extent_side: float | None = None
+    distance_scale: float | None = None
+
+    def __post_init__(self) -> None:
+        for key in ("pool", "hidden", "actions", "iterations", "patch"):
+            _positive_int(f"algo.extractor.planner.{key}", getattr(self, key))
+        for key in GEOMETRY_KEYS:
+            value = getattr(self, key)
+            if value is not None and not value > 0:
+                raise ConfigError(f"algo.extractor.planner.{key}: expected a positive number, got {value!r}")
+
+    def geometry(self) -> dict[str, float]:
+        """The geometry keys, all set (else :class:`ConfigError` naming the missing ones)."""
+        missing = [k for k in GEOMETRY_KEYS if getattr(self, k) is None]
+        if missing:
+            raise ConfigError(
+                f"algo.extractor.planner: elevation_encoder=vin needs {', '.join(missing)} (the map's geometry), "
+                "e.g. algo.extractor.planner.cell_size='${sensor.elevation_map.cell_size}'"
+            )
+        return {k: float(getattr(self, k)) for k in GEOMETRY_KEYS}
+
+
+@dataclass
 class ExtractorConfig:
     """The features extractor of :mod:`diana_lab.agents.extractors`: one encoder per observation key.
 
@@ -68,8 +108,9 @@ class ExtractorConfig:
     cnn_channels: list[int] = field(default_factory=lambda: [16, 32, 32])  # depth image / elevation map CNN
     cnn_pool: list[int] = field(default_factory=lambda: [3, 4])  # adaptive pooling grid (rows, cols) after it
     sensor_features: int = 128
-    elevation_encoder: str = "cnn"  # cnn | mlp
+    elevation_encoder: str = "cnn"  # cnn | mlp | vin (a value-iteration planning network, see ``planner``)
     point_hidden: list[int] = field(default_factory=lambda: [64, 128])  # PointNet shared per-point MLP
+    planner: PlannerConfig = field(default_factory=PlannerConfig)
 
     def __post_init__(self) -> None:
         _layers("algo.extractor.goal_hidden", self.goal_hidden)
@@ -105,6 +146,11 @@ class AlgoConfig:
         positive("algo.learning_rate", self.learning_rate)
         in_range("algo.gamma", self.gamma, 0.0, 1.0)
         _layers("algo.net_arch", self.net_arch)
+        if self.extractor.elevation_encoder == "vin" and self.normalize and "goal" in self.norm_obs_keys:
+            raise ConfigError(
+                "algo.normalize: the vin encoder places the goal on its map from the raw goal vector, so 'goal' "
+                "cannot be normalised; set algo.normalize=false or drop 'goal' from algo.norm_obs_keys"
+            )
 
     @property
     def off_policy(self) -> bool:

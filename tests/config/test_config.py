@@ -23,6 +23,13 @@ def test_every_option_composes_and_validates(group):
         assert getattr(obj, "name", option) == option
 
 
+@pytest.mark.parametrize("preset", sorted(p.stem for p in (CONF_DIR / "experiment").glob("*.yaml")))
+def test_every_experiment_preset_composes_and_validates(preset):
+    cfg = compose([f"+experiment={preset}"])
+    objects = validate(cfg, [*GROUPS, "algo", "train"])
+    assert set(GROUPS) <= set(objects)
+
+
 def test_default_config_validates_every_group():
     objects = validate(compose())
     assert set(GROUPS) <= set(objects)
