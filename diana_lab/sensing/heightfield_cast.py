@@ -27,6 +27,13 @@ Only the *order* of the tests is clever:
   sphere is out of range of the sensor are dropped once per sensor position, the others are tested with
   their bounding sphere and box and then triangle by triangle; the terrain walk then stops at that hit.
 
+Rays come either as an ``(N, 6)`` array (:meth:`HeightfieldScene.cast`) or as a pose
+(:meth:`HeightfieldScene.cast_pose`): the sensor's fixed body-frame directions, a rotation and an origin, the
+kernels rotating each direction as they go, so a frame builds no ray array (and, given ``min_range``, they also
+write the sensor's NaN for no return, so the frame needs no masking pass). :func:`pose_rays` writes those very
+rays (bit for bit) for the casters that need an array (open3d, PyBullet). The two forms are compiled apart
+(``None`` arguments), so neither pays for the other.
+
 What measurement taught (numba specifics): a call passing arrays costs ~70 ns a ray in reference counting
 (so the kernels are single functions with scalar-only helpers); the tests' divisions and early exits sat on
 the walk's critical path, so the terrain test decides with products only (branch-free, divides once for a
@@ -46,7 +53,15 @@ from numba import njit
 
 from diana_lab.sim.world import World
 
-__all__ = ["BLOCK_SHIFT", "SPEED", "HeightfieldScene", "cast_obstacles", "cast_terrain", "heightfield_for"]
+__all__ = [
+    "BLOCK_SHIFT",
+    "SPEED",
+    "HeightfieldScene",
+    "cast_obstacles",
+    "cast_terrain",
+    "heightfield_for",
+    "pose_rays",
+]
 
 SPEED = """\
 Measured 2026-11-22, 2 cores (Xeon, load 3.6-4.5 from another job), one thread, mars_yard, the benchmark's rover
@@ -63,10 +78,22 @@ indices 0.91x the time, the block DDA and cheaper block entry a further ~0.97x: 
 unloaded; sensor_ms ~0.32 ms by estimate). Tried, no faster: skipping the start of each ray that is provably above
 the terrain (per frame, the highest point in square rings of cells and blocks around the sensor, per quadrant):
 30% fewer steps, yet 15-25% slower (the per-ray level test and locating the start cell cost more than the steps);
-the same for upward rays only: no change; fastmath {nsz, contract}: no change. Not done: a per-frame horizon
-(highest slope per azimuth sector, cells near the sensor and blocks beyond) would cull ~67% of the ~540 rays a frame
-that hit nothing (~90 ns each), ~15-20 us a frame net of its cost by estimate.
+the same for upward rays only: no change; fastmath {nsz, contract}: no change.
+Then (whole frame: sensor.observe of the bench's depth_image sensor over its 256 poses, variants interleaved with
+the order rotated, per-round ratio to the previous kernel, medians of 50-60 rounds; load 2-4.6 from another job,
+where two copies of one kernel differ by 0.2-0.3%): the pose form with the sensor's window (RayCaster and
+RaySensor.capture calling cast_pose(..., min_range=...)) 0.973x the frame (~9 us of ~325: the numpy ray transform
+~7 us and the NaN mask ~6 us a frame, less ~3 us of rotating in the kernel); the pose form without the window
+0.99x; the (N, 6) form unchanged (kernel A/B 1.001x). Tried, slower, taken out: a per-frame horizon (the steepest
+slope to the terrain in 64 azimuth sectors, from cells near the sensor and blocks out to max_range, conservative by
+a sector either side; exact): it marks 280-320 of the ~536 rays a frame that hit nothing, but those are the cheap
+ones (upward rays leave the height range at once: ~17 us a frame for all of them), while the costly misses (~215
+near the horizon, ~175 ns each) pass below it; building it takes 6-16 us a frame and testing every ray more, so the
+cast took 1.035-1.06x the time (blocks only / 8 cells near). Clipping rays to the highest block in range instead of
+the map's highest point: 1.01x (no gain).
 Compile: ~4 s the first time (2.9 s terrain + 1.1 s obstacle kernel), then cached; 0.4 s on first use per process.
+Each form compiles apart, on first use (under load: the (N, 6) form 4.0 s, the pose form 3.7 s, with the window
+2.7 s, pose_rays 1.6 s), then cached.
 """
 
 BLOCK_SHIFT = 3  # blocks of 8 x 8 cells (1.56 m on the Mars yard)
@@ -155,15 +182,54 @@ class HeightfieldScene:
     def cast(self, rays: np.ndarray, max_range: float = math.inf) -> np.ndarray:
         """Hit distance of every ray of ``rays (N, 6)`` float32 (origin xyz, unit direction xyz): ``(N,)``
         float32, ``inf`` where nothing is hit within ``max_range`` (a fresh array)."""
-        max_range = float(max_range)
+        return self._cast(rays, None, None, float(max_range), None)
+
+    def cast_pose(
+        self,
+        directions: np.ndarray,
+        origin: np.ndarray,
+        rotation: np.ndarray,
+        max_range: float = math.inf,
+        min_range: float | None = None,
+    ) -> np.ndarray:
+        """:meth:`cast` of the rays ``directions (N, 3)`` (float32, C-contiguous, unit, body frame) rotated by
+        ``rotation (3, 3)`` and starting at ``origin (3,)`` (world frame, float64): the pose transform is done
+        in the kernel, ray by ray, so a frame builds no ``(N, 6)`` ray array. The rays cast are
+        :func:`pose_rays`'s, bit for bit (float32 origin and rotation, the product in float64 rounded once to
+        float32: within half a float32 ulp of a numpy float32 matmul's, not always equal to it).
+
+        With ``min_range`` the result is a sensor's: NaN for no hit and for a (float32) range outside
+        ``[min_range, max_range]`` (compared in float32, as numpy compares a float32 array with Python
+        floats), so the caller needs no masking pass."""
+        lo = None if min_range is None else float(min_range)
+        return self._cast(directions, origin, rotation, float(max_range), lo)
+
+    def _cast(
+        self,
+        rays: np.ndarray,
+        origin: np.ndarray | None,
+        rotation: np.ndarray | None,
+        max_range: float,
+        min_range: float | None,
+    ) -> np.ndarray:
         if self.n_obstacles:
             first = cast_obstacles(
-                rays, max_range, self.ob_vertices, self.ob_triangles, self.ob_start, self.ob_box, self.ob_sphere
+                rays,
+                origin,
+                rotation,
+                max_range,
+                self.ob_vertices,
+                self.ob_triangles,
+                self.ob_start,
+                self.ob_box,
+                self.ob_sphere,
             )
         else:
             first = _NONE
         return cast_terrain(
             rays,
+            origin,
+            rotation,
             max_range,
             first,
             self.xs,
@@ -174,6 +240,7 @@ class HeightfieldScene:
             self.block_cols,
             self.shift,
             self.z_range,
+            min_range,
         )
 
 
@@ -268,18 +335,73 @@ def _u(i):  # pragma: no cover (numba)
     return np.uint64(i)
 
 
+@_jit(inline="always")
+def _pose32(origin, rotation):  # pragma: no cover (numba)
+    """A pose's rotation and origin as float32 values (in float64 variables): what the rays carry."""
+    f = np.float32
+    return (
+        np.float64(f(rotation[0, 0])),
+        np.float64(f(rotation[0, 1])),
+        np.float64(f(rotation[0, 2])),
+        np.float64(f(rotation[1, 0])),
+        np.float64(f(rotation[1, 1])),
+        np.float64(f(rotation[1, 2])),
+        np.float64(f(rotation[2, 0])),
+        np.float64(f(rotation[2, 1])),
+        np.float64(f(rotation[2, 2])),
+        np.float64(f(origin[0])),
+        np.float64(f(origin[1])),
+        np.float64(f(origin[2])),
+    )
+
+
+@_jit(inline="always")
+def _rotate32(ex, ey, ez, r00, r01, r02, r10, r11, r12, r20, r21, r22):  # pragma: no cover (numba)
+    """``R e`` in float64, rounded to float32 (one rounding: within half an ulp of the exact product)."""
+    f = np.float32
+    dx = np.float64(f(r00 * ex + r01 * ey + r02 * ez))
+    dy = np.float64(f(r10 * ex + r11 * ey + r12 * ez))
+    dz = np.float64(f(r20 * ex + r21 * ey + r22 * ez))
+    return dx, dy, dz
+
+
 @_jit()
-def cast_obstacles(rays, max_range, ob_vertices, ob_triangles, ob_start, ob_box, ob_sphere):  # pragma: no cover
-    """Nearest obstacle hit of every ray (float64, ``inf`` for none within ``max_range``)."""
+def pose_rays(directions, origin, rotation, out):  # pragma: no cover (numba)
+    """Write the rays of a pose into ``out (N, 6)`` float32 (origin xyz, direction xyz) and return it:
+    bit for bit the rays :func:`cast_terrain` and :func:`cast_obstacles` cast for ``(directions, origin,
+    rotation)``, for casting the same rays elsewhere (open3d, PyBullet)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, pose_x, pose_y, pose_z = _pose32(origin, rotation)
+    for i in range(directions.shape[0]):
+        ex, ey, ez = np.float64(directions[i, 0]), np.float64(directions[i, 1]), np.float64(directions[i, 2])
+        dx, dy, dz = _rotate32(ex, ey, ez, r00, r01, r02, r10, r11, r12, r20, r21, r22)
+        out[i, 0], out[i, 1], out[i, 2] = pose_x, pose_y, pose_z
+        out[i, 3], out[i, 4], out[i, 5] = dx, dy, dz
+    return out
+
+
+@_jit()
+def cast_obstacles(
+    rays, origin, rotation, max_range, ob_vertices, ob_triangles, ob_start, ob_box, ob_sphere
+):  # pragma: no cover (numba)
+    """Nearest obstacle hit of every ray (float64, ``inf`` for none within ``max_range``); the rays as in
+    :func:`cast_terrain`."""
     n, n_ob = rays.shape[0], ob_start.shape[0] - 1
+    r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = pose_x = pose_y = pose_z = 0.0
+    if rotation is not None:  # a pose (None: the rays carry origins and directions); compiled apart
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, pose_x, pose_y, pose_z = _pose32(origin, rotation)
     out = np.full(n, np.inf)
     t_lim = max_range * (1.0 + 1e-6) + 1e-6
     near = np.empty(n_ob, dtype=np.int64)  # the obstacles in range of the current ray origin
     n_near, home_x, home_y, home_z = 0, np.nan, np.nan, np.nan
     v = ob_vertices
     for i in range(n):
-        ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
-        dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
+        if rotation is not None:
+            ex, ey, ez = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
+            ox, oy, oz = pose_x, pose_y, pose_z
+            dx, dy, dz = _rotate32(ex, ey, ez, r00, r01, r02, r10, r11, r12, r20, r21, r22)
+        else:
+            ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
+            dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
         if not (ox == home_x and oy == home_y and oz == home_z):  # a new sensor position: cull once
             home_x, home_y, home_z, n_near = ox, oy, oz, 0
             for k in range(n_ob):
@@ -310,12 +432,34 @@ def cast_obstacles(rays, max_range, ob_vertices, ob_triangles, ob_start, ob_box,
 
 @_jit()
 def cast_terrain(
-    rays, max_range, first, xs, ys, hs, cell_max, block_max, block_cols, shift, z_range
+    rays,
+    origin,
+    rotation,
+    max_range,
+    first,
+    xs,
+    ys,
+    hs,
+    cell_max,
+    block_max,
+    block_cols,
+    shift,
+    z_range,
+    lo,
 ):  # pragma: no cover (numba)
-    """Nearest hit of every ray ``(N, 6)`` (float32 origin xyz, unit direction xyz) on the terrain, or on an
-    obstacle if ``first[i]`` (obstacle hit distances; empty: none) is nearer: ``(N,)`` float32, ``inf`` for
-    no hit within ``max_range``."""
+    """Nearest hit of every ray on the terrain, or on an obstacle if ``first[i]`` (obstacle hit distances;
+    empty: none) is nearer: ``(N,)`` float32, ``inf`` for no hit within ``max_range``. The rays: ``rays (N,
+    6)`` float32 (origin xyz, unit direction xyz), ``origin`` and ``rotation`` None; or a pose, ``rays (N,
+    3)`` float32 directions in the body frame rotated by ``rotation (3, 3)`` from ``origin (3,)`` (both
+    float64), exactly as :func:`pose_rays` writes them. With ``lo`` (not None), a range (float32) outside
+    ``[lo, max_range]`` (compared as float32 values) or no hit comes back as NaN (the sensor's "no return")."""
     n = rays.shape[0]
+    r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = pose_x = pose_y = pose_z = 0.0
+    if rotation is not None:  # a pose (None: the rays carry origins and directions); compiled apart
+        r00, r01, r02, r10, r11, r12, r20, r21, r22, pose_x, pose_y, pose_z = _pose32(origin, rotation)
+    lo32, hi32 = np.float32(-np.inf), np.float32(max_range)
+    if lo is not None:  # None: no window; compiled apart
+        lo32 = np.float32(lo)
     out = np.empty(n, dtype=np.float32)
     has_first = first.shape[0] == n
     t_lim = max_range * (1.0 + 1e-6) + 1e-6  # a hit the caller may keep after rounding to float32 stays
@@ -328,8 +472,13 @@ def cast_terrain(
     # every ray of a frame starts at the sensor: its cell is located once
     home_x, home_y, home_ix, home_iy = np.nan, np.nan, 0, 0
     for i in range(n):
-        ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
-        dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
+        if rotation is not None:
+            ex, ey, ez = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
+            ox, oy, oz = pose_x, pose_y, pose_z
+            dx, dy, dz = _rotate32(ex, ey, ez, r00, r01, r02, r10, r11, r12, r20, r21, r22)
+        else:
+            ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
+            dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
         best = first[i] if has_first else np.inf
         # clip to the map's box, the terrain's height range, the range limit and the obstacle hit
         step_x = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
@@ -470,5 +619,9 @@ def cast_terrain(
                         break
                     tby = (ys[_u(min((by + offb_y) << shift, ncy))] - oy) * inv_dy
                     entered = 2
-        out[i] = best if best <= t_lim else np.inf
+        if lo is None:
+            out[i] = best if best <= t_lim else np.inf
+        else:
+            r = np.float32(best) if best <= t_lim else np.float32(np.inf)
+            out[i] = r if r >= lo32 and r <= hi32 else np.float32(np.nan)
     return out

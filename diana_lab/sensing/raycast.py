@@ -11,10 +11,11 @@ Why it looks the way it does:
   worker, and the Embree scene behind ``RaycastingScene`` cannot be pickled. The scene is therefore built
   lazily on first use, dropped by ``__getstate__``, and shared by every caster of the same :class:`World`
   object in one process (a weak-key cache, so it goes away with the world).
-* The ray directions are fixed in the rover frame; a frame only rotates them and sets the origin. Both are
-  written in place (one small matmul) into one ``(N, 6)`` float32 buffer, which the heightfield kernel
-  reads and an open3d tensor views without copying (``Tensor.from_numpy``), so both backends cast the
-  very same float32 rays and a frame allocates nothing on the Python side before the cast.
+* The ray directions are fixed in the rover frame; a frame only rotates them and sets the origin. The
+  heightfield kernel does that itself, ray by ray (``HeightfieldScene.cast_pose``: no ``(N, 6)`` array is
+  built per frame); for open3d (and :meth:`RayCaster.rays`) ``heightfield_cast.pose_rays`` writes the very
+  same float32 rays, bit for bit, into one ``(N, 6)`` buffer that an open3d tensor views without copying
+  (``Tensor.from_numpy``), so both backends cast the same rays.
 * ``nthreads=1`` by default for open3d: vectorised envs already run one env per core, and more threads per
   cast only contend with them. The heightfield kernel is always single-threaded.
 """
@@ -79,10 +80,6 @@ class RayCaster:
         self.directions = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
         self.directions.setflags(write=False)
         self._rays = np.zeros((len(self.directions), 6), dtype=np.float32)
-        # rays = [1 | d] @ [[origin, 0], [0, R^T]]: one contiguous matmul writes origins and rotated
-        # directions (a matmul into the strided half of the buffer took 5x longer)
-        self._basis = np.hstack([np.ones((len(self.directions), 1), np.float32), self.directions])
-        self._affine = np.zeros((4, 6), dtype=np.float32)
         self._scene: o3d.t.geometry.RaycastingScene | HeightfieldScene | None = None
         self._rays_t: o3d.core.Tensor | None = None
 
@@ -105,21 +102,29 @@ class RayCaster:
 
         Returns the buffer itself, ``(N, 6)`` = origin xyz, direction xyz (overwritten by the next call).
         """
-        self._affine[0, :3] = origin
-        self._affine[1:, 3:] = rotation.T
-        return np.matmul(self._basis, self._affine, out=self._rays)
+        from diana_lab.sensing.heightfield_cast import pose_rays
 
-    def cast(self, origin: np.ndarray, rotation: np.ndarray) -> np.ndarray:
-        """Hit distance of every ray, ``(N,)`` float32, ``inf`` for no hit (a fresh array)."""
-        self.rays(origin, rotation)
+        return pose_rays(self.directions, _f64(origin), _f64(rotation), self._rays)
+
+    def cast(self, origin: np.ndarray, rotation: np.ndarray, min_range: float | None = None) -> np.ndarray:
+        """Hit distance of every ray, ``(N,)`` float32, ``inf`` for no hit (a fresh array). With ``min_range``:
+        a sensor's ranges, NaN for no hit and outside ``[min_range, max_range]`` (compared in float32)."""
         if self.backend == "heightfield":
             if self._scene is None:
                 from diana_lab.sensing.heightfield_cast import heightfield_for
 
                 self._scene = heightfield_for(self.world)
-            return self._scene.cast(self._rays, self.max_range)
+            return self._scene.cast_pose(self.directions, _f64(origin), _f64(rotation), self.max_range, min_range)
+        self.rays(origin, rotation)
         if self._scene is None:
             self._scene = scene_for(self.world, self.nthreads)
         if self._rays_t is None:
             self._rays_t = o3d.core.Tensor.from_numpy(self._rays)
-        return self._scene.cast_rays(self._rays_t, nthreads=self.nthreads)["t_hit"].numpy()
+        t = self._scene.cast_rays(self._rays_t, nthreads=self.nthreads)["t_hit"].numpy()
+        if min_range is not None:
+            np.putmask(t, (t < min_range) | (t > self.max_range), np.float32(np.nan))
+        return t
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    return a if type(a) is np.ndarray and a.dtype == np.float64 else np.asarray(a, dtype=np.float64)

@@ -87,12 +87,14 @@ class RaySensor:
         position = np.array(position, dtype=np.float64)  # copies: the frame keeps the pose it was taken at
         rpy = np.array(rpy, dtype=np.float64)
         rotation = rpy_matrix(rpy)
-        t = self.caster.cast(position + rotation @ self.mount, rotation)
+        origin = position + rotation @ self.mount
         if self.noise.active:
-            t = self.noise.apply(t)
-        # NaN outside [min_range, max_range], in place (t is this frame's own array); ``inf`` (no hit) is
-        # outside too, so there is no fake max-range hit
-        np.putmask(t, (t < self.cfg.min_range) | (t > self.cfg.max_range), np.float32(np.nan))
+            t = self.noise.apply(self.caster.cast(origin, rotation))
+            # NaN outside [min_range, max_range], in place (t is this frame's own array); ``inf`` (no hit) is
+            # outside too, so there is no fake max-range hit
+            np.putmask(t, (t < self.cfg.min_range) | (t > self.cfg.max_range), np.float32(np.nan))
+        else:  # the caster stops at max_range (== cfg.max_range without noise) and NaNs the rest itself
+            t = self.caster.cast(origin, rotation, min_range=self.cfg.min_range)
         return SensorFrame(
             t.reshape(self.image_shape),
             position,

@@ -12,7 +12,7 @@ from omegaconf import OmegaConf
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.rotations import pitch_matrix, rpy_matrix
 from diana_lab.sensing.camera import pinhole_pattern
-from diana_lab.sensing.heightfield_cast import heightfield_for
+from diana_lab.sensing.heightfield_cast import heightfield_for, pose_rays
 from diana_lab.sensing.lidar import lidar_pattern
 from diana_lab.sensing.raycast import RayCaster
 from tests.sensing.conftest import box, make_sensor, plane_world
@@ -43,7 +43,7 @@ def _compare(world, directions, poses, max_range=math.inf):
     for origin, rotation in poses:
         a = ref.cast(origin, rotation)
         b = ours.cast(origin, rotation)
-        np.testing.assert_array_equal(ref._rays, ours._rays)  # the very same float32 rays
+        np.testing.assert_array_equal(ref._rays, ours.rays(origin, rotation))  # the very same float32 rays
         if math.isfinite(max_range):
             a = np.where(a <= max_range, a, np.inf)
         both = np.isfinite(a) & np.isfinite(b)
@@ -130,8 +130,9 @@ def test_flat_plane_depth_is_analytic(rpy):
     origin = np.array([1.0, -2.0, plane_z + 0.35])
     caster = RayCaster(world, CAMERA, max_range=math.inf)
     t = caster.cast(origin, rotation)
-    d = caster._rays[:, 3:].astype(np.float64)
-    o = caster._rays[0, :3].astype(np.float64)
+    rays = caster.rays(origin, rotation)  # the rays cast (whichever way the caster transforms them)
+    d = rays[:, 3:].astype(np.float64)
+    o = rays[0, :3].astype(np.float64)
     with np.errstate(divide="ignore"):
         expected = np.where(d[:, 2] < 0, (plane_z - o[2]) / d[:, 2], np.inf)
     on_map = np.isfinite(expected) & (expected < 25.0)  # the 60 m plane: hits closer than this are on it
@@ -195,3 +196,75 @@ def test_pickled_caster_drops_its_scene_and_still_casts():
     assert clone._scene is None and clone.backend == "heightfield" and clone.max_range == 10.0
     np.testing.assert_array_equal(clone.cast(*pose), first)
     assert np.isfinite(first).sum() > 1_000
+
+
+def _pose_cases(world, rng, n=12):
+    for origin, rotation in _poses(world, n, rng):
+        yield np.asarray(origin, dtype=np.float64), rotation
+    yield np.array([world.bounds[1] + 3.0, 0.5, 2.0]), rpy_matrix([0.0, 0.3, math.pi])  # off the map, looking in
+
+
+@pytest.mark.parametrize("name", ["mars_yard", "craters_world"])
+def test_pose_cast_casts_exactly_the_pose_rays(name, request):
+    """``cast_pose`` transforms the rays in the kernel: the very rays ``pose_rays`` writes (float32 origin, the
+    float32 rotation times the directions in float64, rounded once), so both give the same ranges bit for bit.
+    Against numpy's float32 matmul (what ``RayCaster.rays`` computed before) they differ by rounding only."""
+    world = request.getfixturevalue(name)
+    scene = heightfield_for(world)
+    assert (scene.n_obstacles > 10) == (name == "craters_world")
+    for pattern in (CAMERA, LIDAR):
+        directions = np.ascontiguousarray(pattern, dtype=np.float32)
+        buf = np.empty((len(directions), 6), np.float32)
+        for origin, rotation in _pose_cases(world, np.random.default_rng(11)):
+            rays = pose_rays(directions, origin, rotation, buf)
+            np.testing.assert_array_equal(rays[:, :3], np.broadcast_to(origin.astype(np.float32), (len(rays), 3)))
+            r32 = rotation.astype(np.float32).astype(np.float64)
+            exact = directions.astype(np.float64) @ r32.T
+            assert np.max(np.abs(rays[:, 3:] - exact)) <= 2.0**-25  # one rounding to float32: half an ulp (< 1)
+            numpy32 = directions @ rotation.T.astype(np.float32)
+            assert np.max(np.abs(rays[:, 3:] - numpy32)) <= 2.0**-23  # the numpy transform: rounding apart
+            for max_range in (10.0, math.inf):
+                np.testing.assert_array_equal(
+                    scene.cast_pose(directions, origin, rotation, max_range), scene.cast(rays, max_range)
+                )
+
+
+def test_pose_cast_agrees_with_open3d(mars_yard, craters_world):
+    """open3d casting ``pose_rays``'s rays: the same hits as ``cast_pose``, to open3d's rounding."""
+    import open3d as o3d
+
+    from diana_lab.sensing.raycast import scene_for
+
+    for world in (mars_yard, craters_world):
+        scene, ref = heightfield_for(world), scene_for(world)
+        directions = np.ascontiguousarray(CAMERA, dtype=np.float32)
+        buf = np.empty((len(directions), 6), np.float32)
+        mismatches, worst, hits = 0, 0.0, 0
+        for origin, rotation in _pose_cases(world, np.random.default_rng(12), 20):
+            a = ref.cast_rays(o3d.core.Tensor(pose_rays(directions, origin, rotation, buf)))["t_hit"].numpy()
+            a = np.where(a <= 20.0, a, np.inf)  # Embree's float32 error grows with the range (1e-4 m at 45 m)
+            b = scene.cast_pose(directions, origin, rotation, 20.0)
+            both = np.isfinite(a) & np.isfinite(b)
+            mismatches += int(np.count_nonzero(np.isfinite(a) != np.isfinite(b)))
+            worst = max(worst, float(np.max(np.abs(a[both] - b[both]), initial=0.0)))
+            hits += int(both.sum())
+        assert hits > 10_000 and mismatches == 0 and worst < TOL
+
+
+def test_pose_cast_with_min_range_gives_the_sensor_ranges(mars_yard):
+    """With ``min_range`` the kernel NaNs no hit and ranges outside ``[min_range, max_range]`` itself, exactly
+    as the sensor masks them (float32 comparisons with the Python floats)."""
+    scene = heightfield_for(mars_yard)
+    directions = np.ascontiguousarray(CAMERA, dtype=np.float32)
+    rng = np.random.default_rng(13)
+    near = 0
+    for origin, rotation in _pose_cases(mars_yard, rng):
+        for lo, hi in ((0.2, 10.0), (0.45, 3.0)):
+            t = scene.cast_pose(directions, origin, rotation, hi)
+            expected = t.copy()
+            np.putmask(expected, (t < lo) | (t > hi), np.float32(np.nan))
+            got = scene.cast_pose(directions, origin, rotation, hi, min_range=lo)
+            np.testing.assert_array_equal(got, expected)
+            assert got.dtype == np.float32
+            near += int(np.count_nonzero(t < lo))
+    assert near > 100  # some hits closer than min_range really were masked
