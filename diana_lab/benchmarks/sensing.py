@@ -2,10 +2,11 @@
 
 All on one thread, over the same random rover poses (standing on the terrain of the configured world) and
 the same rays: ``sensor.rays_world`` gives PyBullet exactly the rays our caster casts. Our figure includes
-the encoding; PyBullet's include only the cast (``rayTestBatch``, with the Python list conversion any caller
-pays) or the render and the depth-buffer conversion, so the comparison favours the anchors. Our casts use
-the run's ``sensor.backend`` (``heightfield`` by default, ``sensor.backend=open3d`` for the reference); the
-figures' notes name it.
+the point cloud in the rover frame and the encoding (the issue's "cast + point cloud + depth_image");
+PyBullet's include only the cast (``rayTestBatch``, with the Python list conversion any caller pays) or the
+render and the depth-buffer conversion, so the comparison favours the anchors. Our casts use the run's
+``sensor.backend`` (``heightfield`` by default, ``sensor.backend=open3d`` for the reference); the figures'
+notes name it.
 """
 
 from __future__ import annotations
@@ -105,7 +106,7 @@ class TinyRendererDepth:
     "sensor_ms_tinyrenderer",
 )
 def sensor_vs_pybullet(ctx: BenchContext) -> list[Figure]:
-    """Interleaved per repeat over one batch of poses: our frame -> ``depth_image``, then PyBullet's ray
+    """Interleaved per repeat over one batch of poses: our frame -> point cloud and ``depth_image``, then PyBullet's ray
     test of the same rays (heightfield terrain, then the scene as one mesh), then TinyRenderer."""
     from diana_lab.sensing.pybullet_reference import PyBulletRayCaster
 
@@ -122,8 +123,10 @@ def sensor_vs_pybullet(ctx: BenchContext) -> list[Figure]:
         rays = [sensor.rays_world(pos, rpy) for pos, rpy in batch]
         t0 = time.perf_counter()
         for _ in range(inner):
-            for pos, rpy in batch:
-                sensor.observe(pos, rpy)
+            for pos, rpy in batch:  # the frame, its point cloud (which depth_image itself never needs) and encoding
+                frame = sensor.capture(pos, rpy)
+                frame.points  # noqa: B018 (computed and cached on access)
+                sensor.encode(frame)
         out = {"sensor_ms": _ms_per(time.perf_counter() - t0, per * inner)}
         for terrain, key in PYBULLET_KEYS.items():
             t0 = time.perf_counter()
@@ -156,7 +159,8 @@ def sensor_vs_pybullet(ctx: BenchContext) -> list[Figure]:
         col("sensor_ms"),
         batch=f"{per * inner} frames ({per} poses x {inner})",
         target=SENSOR_TARGET,
-        note=f"{_caster(sensor)}, 1 thread, {sensor.image_shape[1]}x{sensor.image_shape[0]} ({rays}) -> depth_image",
+        note=f"{_caster(sensor)}, 1 thread, {sensor.image_shape[1]}x{sensor.image_shape[0]} ({rays}) -> point cloud "
+        "+ depth_image",
     )
     hf = figure_from_samples(
         "sensor_ms_pybullet_raytest",

@@ -1,12 +1,13 @@
 """One sensor reading: the range image, and the point cloud and depth image derived from it on demand.
 
-The point cloud is computed lazily (``functools.cached_property``): an encoding that only needs the
-range image (``depth_image``) never pays for it, yet every frame can still give it.
+The point cloud is computed lazily (``functools.cached_property``), in one compiled pass over the rays, unless
+the caster already wrote it while casting (the heightfield caster without noise does: it costs ~1 ns a ray
+there); every frame can give it.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
@@ -31,6 +32,7 @@ class SensorFrame:
     directions: np.ndarray  # (H*W, 3) unit ray directions in the rover frame (shared by all frames)
     origin: np.ndarray  # (3,) sensor position in the rover frame (the mount)
     axis_cos: np.ndarray | None = None  # (H, W) cosine between each ray and the optical axis (cameras)
+    cloud: np.ndarray | None = field(default=None, repr=False)  # ``points``, when the caster wrote it already
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -44,13 +46,17 @@ class SensorFrame:
     @cached_property
     def points(self) -> np.ndarray:
         """``(N, 3)`` float32 returns in the ROVER frame (x forward, y left, z up), valid rays only, in
-        row-major pixel order."""
-        r = self.ranges.reshape(-1)
-        keep = np.flatnonzero(self.valid.reshape(-1))  # take() with indices: ~5x faster than a bool mask
-        pts = self.directions.take(keep, axis=0)
-        pts *= r.take(keep)[:, None]
-        pts += self.origin
-        return pts
+        row-major pixel order: ``directions * range + origin`` in float32."""
+        if self.cloud is not None:
+            return self.cloud
+        from diana_lab.sensing.returns import valid_points  # numba: imported on first use
+
+        f32 = np.float32
+        return valid_points(
+            np.ascontiguousarray(self.ranges.reshape(-1), dtype=f32),  # no copies for a sensor's own frame
+            np.ascontiguousarray(self.directions, dtype=f32),
+            np.asarray(self.origin, dtype=f32),
+        )
 
     @cached_property
     def depth(self) -> np.ndarray | None:

@@ -30,7 +30,8 @@ Only the *order* of the tests is clever:
 Rays come either as an ``(N, 6)`` array (:meth:`HeightfieldScene.cast`) or as a pose
 (:meth:`HeightfieldScene.cast_pose`): the sensor's fixed body-frame directions, a rotation and an origin, the
 kernels rotating each direction as they go, so a frame builds no ray array (and, given ``min_range``, they also
-write the sensor's NaN for no return, so the frame needs no masking pass). :func:`pose_rays` writes those very
+write the sensor's NaN for no return, so the frame needs no masking pass, and :meth:`HeightfieldScene.cast_frame`
+has them write the frame's point cloud too). :func:`pose_rays` writes those very
 rays (bit for bit) for the casters that need an array (open3d, PyBullet). The two forms are compiled apart
 (``None`` arguments), so neither pays for the other.
 
@@ -91,6 +92,15 @@ ones (upward rays leave the height range at once: ~17 us a frame for all of them
 near the horizon, ~175 ns each) pass below it; building it takes 6-16 us a frame and testing every ray more, so the
 cast took 1.035-1.06x the time (blocks only / 8 cells near). Clipping rays to the highest block in range instead of
 the map's highest point: 1.01x (no gain).
+Then (session 5, the same A/B method, frames on the bench's poses; a busy machine, two copies of one kernel within
+0.1-0.5%): where a ray's time goes: clipping alone ~12 ns, clipping and the first block and cell ~22 ns, the whole
+frame ~100 ns a ray, yet one ray repeated 3,072 times costs 40-70 ns (hits at 0.4-1.7 m): about a third of a
+frame is the cost of rays that differ (mispredicted branches; shuffling the rays makes the frame 1.30x slower).
+Tried, too little to keep: per-cell plane coefficients precomputed (the test then needs 6 loads and 2 FMAs a plane)
+0.983x; no z division for downward rays 0.996x; t to the next edge accumulated instead of recomputed from the
+vertex coordinates (not exact on a non-uniform grid) 0.984x; rays in column-major order 0.986x; 4 x 4 / 16 x 16
+blocks 1.053x / 1.006x. The frame's point cloud, written by the kernel as it goes (``points``), costs ~1 ns a ray
+(the numpy form, from the ranges afterwards, ~60 us a frame).
 Compile: ~4 s the first time (2.9 s terrain + 1.1 s obstacle kernel), then cached; 0.4 s on first use per process.
 Each form compiles apart, on first use (under load: the (N, 6) form 4.0 s, the pose form 3.7 s, with the window
 2.7 s, pose_rays 1.6 s), then cached.
@@ -182,7 +192,7 @@ class HeightfieldScene:
     def cast(self, rays: np.ndarray, max_range: float = math.inf) -> np.ndarray:
         """Hit distance of every ray of ``rays (N, 6)`` float32 (origin xyz, unit direction xyz): ``(N,)``
         float32, ``inf`` where nothing is hit within ``max_range`` (a fresh array)."""
-        return self._cast(rays, None, None, float(max_range), None)
+        return self._cast(rays, None, None, float(max_range), None)[0]
 
     def cast_pose(
         self,
@@ -202,7 +212,25 @@ class HeightfieldScene:
         ``[min_range, max_range]`` (compared in float32, as numpy compares a float32 array with Python
         floats), so the caller needs no masking pass."""
         lo = None if min_range is None else float(min_range)
-        return self._cast(directions, origin, rotation, float(max_range), lo)
+        return self._cast(directions, origin, rotation, float(max_range), lo)[0]
+
+    def cast_frame(
+        self,
+        directions: np.ndarray,
+        origin: np.ndarray,
+        rotation: np.ndarray,
+        mount: np.ndarray,
+        max_range: float,
+        min_range: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`cast_pose` with ``min_range`` (a sensor's ranges, NaN for no return), and the returns as the
+        sensor's point cloud in the body frame: ``(M, 3)`` float32 ``directions * range + mount`` (``mount
+        (3,)`` float32, the sensor's position on the body) of the rays with a return, in ray order, exactly
+        as numpy computes it in float32 (:attr:`SensorFrame.points`), written by the cast itself.
+        The cloud is a view of the first ``M`` rows of an ``(N, 3)`` buffer."""
+        cloud = np.empty((directions.shape[0], 3), dtype=np.float32)
+        ranges, m = self._cast(directions, origin, rotation, float(max_range), float(min_range), cloud, mount)
+        return ranges, cloud[:m]
 
     def _cast(
         self,
@@ -211,7 +239,9 @@ class HeightfieldScene:
         rotation: np.ndarray | None,
         max_range: float,
         min_range: float | None,
-    ) -> np.ndarray:
+        points: np.ndarray | None = None,
+        mount: np.ndarray | None = None,
+    ) -> tuple[np.ndarray, int]:
         if self.n_obstacles:
             first = cast_obstacles(
                 rays,
@@ -241,6 +271,8 @@ class HeightfieldScene:
             self.shift,
             self.z_range,
             min_range,
+            points,
+            mount,
         )
 
 
@@ -446,13 +478,20 @@ def cast_terrain(
     shift,
     z_range,
     lo,
+    points,
+    mount,
 ):  # pragma: no cover (numba)
     """Nearest hit of every ray on the terrain, or on an obstacle if ``first[i]`` (obstacle hit distances;
-    empty: none) is nearer: ``(N,)`` float32, ``inf`` for no hit within ``max_range``. The rays: ``rays (N,
+    empty: none) is nearer: ``(N,)`` float32, ``inf`` for no hit within ``max_range``; and how many rows of
+    ``points`` were written (0 without it). The rays: ``rays (N,
     6)`` float32 (origin xyz, unit direction xyz), ``origin`` and ``rotation`` None; or a pose, ``rays (N,
     3)`` float32 directions in the body frame rotated by ``rotation (3, 3)`` from ``origin (3,)`` (both
     float64), exactly as :func:`pose_rays` writes them. With ``lo`` (not None), a range (float32) outside
-    ``[lo, max_range]`` (compared as float32 values) or no hit comes back as NaN (the sensor's "no return")."""
+    ``[lo, max_range]`` (compared as float32 values) or no hit comes back as NaN (the sensor's "no return").
+    With ``points (N, 3)`` float32 as well (a pose and ``lo`` only) the returns are also written there as the
+    sensor's point cloud in the body frame, ``directions[i] * range + mount`` (``mount (3,)`` float32) in
+    float32 as numpy computes it, in ray order, each ray to the next free row (a return advances it): the
+    frame's cloud without a second pass over the rays."""
     n = rays.shape[0]
     r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = pose_x = pose_y = pose_z = 0.0
     if rotation is not None:  # a pose (None: the rays carry origins and directions); compiled apart
@@ -461,6 +500,10 @@ def cast_terrain(
     if lo is not None:  # None: no window; compiled apart
         lo32 = np.float32(lo)
     out = np.empty(n, dtype=np.float32)
+    n_points = 0
+    m_x = m_y = m_z = 0.0
+    if points is not None:  # None: no cloud; compiled apart
+        m_x, m_y, m_z = np.float64(mount[0]), np.float64(mount[1]), np.float64(mount[2])
     has_first = first.shape[0] == n
     t_lim = max_range * (1.0 + 1e-6) + 1e-6  # a hit the caller may keep after rounding to float32 stays
     z_lo, z_hi = z_range[0], z_range[1]
@@ -623,5 +666,13 @@ def cast_terrain(
             out[i] = best if best <= t_lim else np.inf
         else:
             r = np.float32(best) if best <= t_lim else np.float32(np.inf)
-            out[i] = r if r >= lo32 and r <= hi32 else np.float32(np.nan)
-    return out
+            r = r if r >= lo32 and r <= hi32 else np.float32(np.nan)
+            out[i] = r
+            if points is not None:
+                # float32 product, then float32 sum (each exact in float64 before its one rounding)
+                f, rr, j = np.float32, np.float64(r), _u(n_points)
+                points[j, 0] = f(np.float64(f(ex * rr)) + m_x)
+                points[j, 1] = f(np.float64(f(ey * rr)) + m_y)
+                points[j, 2] = f(np.float64(f(ez * rr)) + m_z)
+                n_points += not np.isnan(r)
+    return out, n_points

@@ -110,11 +110,9 @@ class RayCaster:
         """Hit distance of every ray, ``(N,)`` float32, ``inf`` for no hit (a fresh array). With ``min_range``:
         a sensor's ranges, NaN for no hit and outside ``[min_range, max_range]`` (compared in float32)."""
         if self.backend == "heightfield":
-            if self._scene is None:
-                from diana_lab.sensing.heightfield_cast import heightfield_for
-
-                self._scene = heightfield_for(self.world)
-            return self._scene.cast_pose(self.directions, _f64(origin), _f64(rotation), self.max_range, min_range)
+            return self._heightfield().cast_pose(
+                self.directions, _f64(origin), _f64(rotation), self.max_range, min_range
+            )
         self.rays(origin, rotation)
         if self._scene is None:
             self._scene = scene_for(self.world, self.nthreads)
@@ -124,6 +122,25 @@ class RayCaster:
         if min_range is not None:
             np.putmask(t, (t < min_range) | (t > self.max_range), np.float32(np.nan))
         return t
+
+    def cast_frame(
+        self, origin: np.ndarray, rotation: np.ndarray, min_range: float, mount: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray | None]:
+        """:meth:`cast` with ``min_range``, and the returns as a point cloud in the rover frame, ``(M, 3)``
+        float32 ``directions * range + mount`` (``mount (3,)`` float32: the sensor's position on the rover),
+        when the backend writes it during the cast (heightfield); ``None`` otherwise (open3d: the frame
+        computes it from the ranges on demand, to the same bits)."""
+        if self.backend == "heightfield":
+            scene = self._heightfield()
+            return scene.cast_frame(self.directions, _f64(origin), _f64(rotation), mount, self.max_range, min_range)
+        return self.cast(origin, rotation, min_range), None
+
+    def _heightfield(self) -> HeightfieldScene:
+        if self._scene is None:
+            from diana_lab.sensing.heightfield_cast import heightfield_for
+
+            self._scene = heightfield_for(self.world)
+        return self._scene  # type: ignore[return-value]
 
 
 def _f64(a: np.ndarray) -> np.ndarray:

@@ -88,13 +88,15 @@ class RaySensor:
         rpy = np.array(rpy, dtype=np.float64)
         rotation = rpy_matrix(rpy)
         origin = position + rotation @ self.mount
+        cloud = None
         if self.noise.active:
             t = self.noise.apply(self.caster.cast(origin, rotation))
             # NaN outside [min_range, max_range], in place (t is this frame's own array); ``inf`` (no hit) is
             # outside too, so there is no fake max-range hit
             np.putmask(t, (t < self.cfg.min_range) | (t > self.cfg.max_range), np.float32(np.nan))
-        else:  # the caster stops at max_range (== cfg.max_range without noise) and NaNs the rest itself
-            t = self.caster.cast(origin, rotation, min_range=self.cfg.min_range)
+        else:  # the caster stops at max_range (== cfg.max_range without noise), NaNs the rest and (heightfield)
+            # writes the point cloud as it goes
+            t, cloud = self.caster.cast_frame(origin, rotation, self.cfg.min_range, self._mount32)
         return SensorFrame(
             t.reshape(self.image_shape),
             position,
@@ -102,6 +104,7 @@ class RaySensor:
             self.caster.directions,
             self._mount32,
             self.axis_cos,
+            cloud,
         )
 
     def encode(self, frame: SensorFrame) -> np.ndarray:

@@ -105,3 +105,32 @@ def test_camera_defaults_see_the_ground_from_one_to_eight_metres(flat_plane):
     forward = frame.points[np.abs(frame.points[:, 1]) < 0.3, 0]
     assert forward.min() < 1.0 and forward.max() > 8.0
     assert dataclasses.asdict(cam.cfg)["nthreads"] == 1
+
+
+def _cloud_by_numpy(frame) -> np.ndarray:
+    """The definition of ``SensorFrame.points``: ``directions * range + mount`` in float32, valid rays in order."""
+    r = frame.ranges.reshape(-1)
+    keep = np.flatnonzero(~np.isnan(r))
+    return frame.directions[keep] * r[keep][:, None] + frame.origin
+
+
+@pytest.mark.parametrize("option", ["depth_camera", "lidar3d"])
+@pytest.mark.parametrize("backend, noise", [("heightfield", "none"), ("open3d", "none"), ("heightfield", "realistic")])
+def test_point_cloud_is_the_ranges_through_the_ray_pattern_bit_for_bit(option, backend, noise):
+    # the heightfield caster writes the cloud while casting (no noise); otherwise the frame computes it
+    from diana_lab.sim.terrain import Terrain
+    from diana_lab.sim.world import World
+
+    heights = np.random.default_rng(3).normal(0.0, 0.15, size=(41, 41))
+    world = World("rough", Terrain(heights, 20.0, 20.0), [box((2.0, -0.5, -0.5), (2.6, 0.5, 0.6))])
+    sensor = make_sensor(option, world, backend=backend, noise=noise)
+    sensor.reset(np.random.default_rng(0))
+    rng = np.random.default_rng(1)
+    for _ in range(20):
+        pose = (np.array([*rng.uniform(-3.0, 3.0, 2), 0.4]), rng.uniform(-0.2, 0.2, 3) * [1, 1, 15])
+        frame = sensor.capture(*pose)
+        assert (frame.cloud is not None) == (backend == "heightfield" and noise == "none")
+        expected = _cloud_by_numpy(frame)
+        assert 0 < len(expected) < frame.ranges.size  # some returns, some rays without one
+        assert frame.points.dtype == np.float32
+        np.testing.assert_array_equal(frame.points, expected)
