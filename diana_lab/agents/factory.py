@@ -13,13 +13,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from gymnasium import spaces
 from hydra.utils import get_class, instantiate
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
 from diana_lab.agents.extractors import RoverExtractor
-from diana_lab.config.run import NON_SB3_KEYS, AlgoConfig
+from diana_lab.config.run import NON_SB3_KEYS, AlgoConfig, check_action_space
 
 __all__ = ["algo_class", "build_model", "load_model", "policy_kwargs"]
 
@@ -66,7 +67,13 @@ def algo_class(cfg: AlgoConfig) -> type[BaseAlgorithm]:
 
 
 def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", verbose: int = 0) -> BaseAlgorithm:
-    """A fresh model of ``cfg``'s class on ``env`` (each non-runner key of ``cfg`` is a constructor kwarg)."""
+    """A fresh model of ``cfg``'s class on ``env`` (each non-runner key of ``cfg`` is a constructor kwarg).
+
+    A ``Discrete`` env (``action_space=discrete``) with an algorithm that needs a ``Box`` raises
+    :class:`~diana_lab.config.ConfigError` naming both, before SB3's constructor asserts on it.
+    """
+    if isinstance(env.action_space, spaces.Discrete):
+        check_action_space(cfg, "discrete")
     node = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in NON_SB3_KEYS}
     node.update({"_target_": cfg._target_, "_partial_": True, "_convert_": "all"})
     make = instantiate(node)

@@ -20,6 +20,7 @@ from diana_lab.config import evaluation as _eval_schema  # noqa: F401  (register
 from diana_lab.config import run as _run_schemas  # noqa: F401  (registers algo, train, tracking)
 from diana_lab.config import sensing as _sensor_schemas  # noqa: F401  (registers the sensor schemas)
 from diana_lab.config import sweep as _sweep_schema  # noqa: F401  (registers the sweep schema)
+from diana_lab.config.run import check_action_space
 from diana_lab.config.store import SCHEMAS, register, store_schemas
 from diana_lab.config.validation import ConfigError
 
@@ -98,8 +99,12 @@ def to_object(group: str, node: Any) -> Any:
 
 
 def validate(cfg: DictConfig, groups: Sequence[str] = GROUPS) -> dict[str, Any]:
-    """Typed objects of every group present in ``cfg``; raises :class:`ConfigError` on impossible values."""
-    return {g: to_object(g, cfg[g]) for g in groups if g in cfg}
+    """Typed objects of every group present in ``cfg``; raises :class:`ConfigError` on impossible values,
+    and on groups that cannot work together (an ``algo`` that cannot drive the ``action_space``)."""
+    typed = {g: to_object(g, cfg[g]) for g in groups if g in cfg}
+    if "algo" in typed and "action_space" in typed:
+        check_action_space(typed["algo"], typed["action_space"].shape)
+    return typed
 
 
 def build(cfg: Any, *args: Any, **kwargs: Any) -> Any:

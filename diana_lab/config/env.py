@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -10,30 +11,86 @@ from omegaconf import MISSING
 from diana_lab.config.store import register
 from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, ordered, positive
 
+SHAPES = ("square", "circle", "discrete")
+
 
 @dataclass
 class ActionSpaceConfig:
-    """Where the next waypoint may be: a square of side ``size`` or a disc of radius ``radius`` around the rover."""
+    """Where the next waypoint may be: a square of side ``size`` or a disc of radius ``radius`` around the rover,
+    or (``discrete``) one of a fixed set of candidates.
+
+    ``discrete`` exists for imitation: the A* expert's choice is multimodal (round an obstacle on the left or
+    on the right, a near or a far waypoint), and regressing a Gaussian mean on it averages the modes into a
+    waypoint between them, often on the hazard itself; a categorical head over candidates picks one mode. The
+    candidates are every pairing of ``headings`` evenly spaced bearings (the first straight ahead in the
+    action frame, counter-clockwise) with the ``distances`` (m), heading-major: candidate ``k`` lies at bearing
+    ``2 pi (k // len(distances)) / headings`` and distance ``distances[k % len(distances)]``. Every distance is
+    at most ``size / 2``, so the candidates lie on the disc inscribed in the paper's square (and, with the
+    default sizes, inside its 4 m disc too). ``frame=world`` takes the bearings in the map's axes (the first
+    one along +x). ``min_distance`` must stay 0: the smallest of ``distances`` already says how close a
+    waypoint may be.
+    """
 
     name: str = MISSING
-    shape: str = MISSING  # "square" | "circle"
-    size: float = 7.0  # square side (m)
+    shape: str = MISSING  # "square" | "circle" | "discrete"
+    size: float = 7.0  # square side (m); for discrete, 2 x the largest allowed distance
     radius: float = 4.0  # circle radius (m)
     frame: str = "rover"  # "world": axes aligned with the map (paper); "rover": x forward, y left
     min_distance: float = 0.0  # waypoints closer than this are pushed out to it (0 keeps the mapping exact)
+    headings: int = 16  # discrete: evenly spaced bearings, the first straight ahead
+    distances: list[float] = field(default_factory=lambda: [1.0, 2.0, 3.0])  # discrete: ring radii (m), increasing
 
     def __post_init__(self) -> None:
-        one_of("action_space.shape", self.shape, ("square", "circle"))
+        one_of("action_space.shape", self.shape, SHAPES)
         one_of("action_space.frame", self.frame, ("world", "rover"))
         positive("action_space.size", self.size)
         positive("action_space.radius", self.radius)
         non_negative("action_space.min_distance", self.min_distance)
+        if self.shape == "discrete":
+            self._check_candidates()
+            return
         extent = self.size / 2 if self.shape == "square" else self.radius
         if self.min_distance >= extent:
             raise ConfigError(
                 f"action_space.min_distance ({self.min_distance}) must be smaller than the shape's "
                 f"half-extent ({extent})"
             )
+
+    def _check_candidates(self) -> None:
+        if isinstance(self.headings, bool) or not isinstance(self.headings, int) or self.headings < 2:
+            raise ConfigError(
+                f"action_space.headings: expected an integer >= 2 (one bearing alone could never turn), "
+                f"got {self.headings!r}"
+            )
+        if not self.distances:
+            raise ConfigError("action_space.distances: expected at least one distance (m)")
+        reach = self.size / 2
+        for i, d in enumerate(self.distances):
+            if not (isinstance(d, int | float) and math.isfinite(d) and 0 < d <= reach):
+                raise ConfigError(
+                    f"action_space.distances[{i}]: expected a distance in (0, {reach}] m (action_space.size / 2, "
+                    f"so that every candidate lies inside the square), got {d!r}"
+                )
+        if any(b <= a for a, b in zip(self.distances, self.distances[1:], strict=False)):
+            raise ConfigError(
+                f"action_space.distances: expected strictly increasing distances (distinct candidates), "
+                f"got {list(self.distances)}"
+            )
+        if self.min_distance != 0:
+            raise ConfigError(
+                f"action_space.min_distance: expected 0 with shape discrete (the smallest of "
+                f"action_space.distances is the nearest waypoint), got {self.min_distance!r}"
+            )
+
+    @property
+    def extent(self) -> float:
+        """How far from the rover a waypoint can lie along its own direction: the square's half side, the
+        disc's radius, or the farthest candidate."""
+        if self.shape == "square":
+            return self.size / 2.0
+        if self.shape == "circle":
+            return self.radius
+        return float(max(self.distances))
 
 
 @dataclass

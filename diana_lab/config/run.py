@@ -39,6 +39,10 @@ NON_SB3_KEYS = frozenset(
 )
 
 
+# ActorCriticPolicy kwargs that shape a Gaussian action distribution: a categorical policy would ignore them
+GAUSSIAN_POLICY_KWARGS = ("log_std_init", "full_std", "use_expln", "squash_output")
+
+
 def _positive_int(key: str, value: int) -> None:
     if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
         raise ConfigError(f"{key}: expected a positive integer, got {value!r}")
@@ -156,6 +160,12 @@ class AlgoConfig:
     def off_policy(self) -> bool:
         return False
 
+    @property
+    def discrete_actions(self) -> bool:
+        """Whether the SB3 class takes a ``Discrete`` action space (a categorical policy head). SAC, TQC,
+        DDPG and TD3 differentiate their critic through a continuous action, so they need a ``Box``."""
+        return False
+
 
 @dataclass
 class OnPolicyConfig(AlgoConfig):
@@ -172,6 +182,10 @@ class OnPolicyConfig(AlgoConfig):
         non_negative("algo.ent_coef", self.ent_coef)
         non_negative("algo.vf_coef", self.vf_coef)
         positive("algo.max_grad_norm", self.max_grad_norm)
+
+    @property
+    def discrete_actions(self) -> bool:
+        return True  # PPO and A2C: a Categorical distribution over the candidates
 
 
 @dataclass
@@ -276,6 +290,24 @@ class TD3Config(DDPGConfig):
         non_negative("algo.target_noise_clip", self.target_noise_clip)
 
 
+def check_action_space(algo: AlgoConfig, shape: str) -> None:
+    """Refuse an ``algo`` that cannot drive ``action_space.shape`` before anything is built, naming both keys
+    (SB3 would only fail in the model's constructor, with an assertion about space classes)."""
+    if shape != "discrete":
+        return
+    if not algo.discrete_actions:
+        raise ConfigError(
+            f"algo={algo.name} with action_space.shape=discrete: {algo.name} needs a continuous (Box) action; "
+            "use algo=ppo or algo=a2c with the discrete action space, or action_space=square|circle"
+        )
+    gaussian = [k for k in GAUSSIAN_POLICY_KWARGS if k in algo.policy_kwargs]
+    if gaussian:
+        raise ConfigError(
+            f"algo.policy_kwargs.{gaussian[0]}: a Gaussian-policy setting, but action_space.shape=discrete gives "
+            "a categorical policy that would ignore it; drop it"
+        )
+
+
 # ----------------------------------------------------------------------------------------------- train
 
 
@@ -307,6 +339,7 @@ class ImitationConfig:
     batch_size: int = 256
     learning_rate: float = 1.0e-3
     # Gaussian policies only (PPO/A2C): the log std set after imitation, so RL starts near the imitated policy
+    # (a categorical policy, action_space=discrete, has none: its exploration is the fitted probabilities)
     log_std: float | None = -1.5
 
     def __post_init__(self) -> None:

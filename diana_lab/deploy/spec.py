@@ -20,6 +20,7 @@ __all__ = ["FORMAT", "ActionSpec", "EncodingSpec", "PolicySpec", "SensorSpec", "
 FORMAT = "diana_lab.deploy/1"  # bump when a field changes meaning; the runtime refuses other formats
 SENSOR_TYPES = ("depth_camera", "lidar3d")
 ENCODINGS = ("depth_image", "elevation_map", "points")
+ACTION_SHAPES = ("square", "circle", "discrete")
 GOAL_KEYS = ("distance", "sin_heading_error", "cos_heading_error", "roll", "pitch", "sin_yaw", "cos_yaw")
 SENSOR_FRAME = "body frame of the sensor: x forward (optical axis), y left, z up"
 
@@ -110,23 +111,36 @@ class EncodingSpec:
 
 @dataclass(frozen=True)
 class ActionSpec:
-    """The action-to-waypoint mapping baked into the graph (``frame`` is applied by the runtime)."""
+    """The action-to-waypoint mapping baked into the graph (``frame`` is applied by the runtime).
 
-    shape: str  # square | circle
+    ``discrete``: the graph picks one of ``headings x len(distances)`` candidate offsets (argmax of the
+    policy's logits); candidate ``k`` lies at bearing ``2 pi (k // len(distances)) / headings`` (from the
+    frame's x axis, counter-clockwise) and distance ``distances[k % len(distances)]`` (m). The graph's
+    ``offset`` output is the same waypoint offset in the action frame as for the continuous shapes.
+    """
+
+    shape: str  # square | circle | discrete
     size: float
     radius: float
     frame: str  # rover: the graph's offset is turned by the yaw; world: used as is
     min_distance: float = 0.0
+    headings: int | None = None  # discrete only: evenly spaced bearings, the first along the frame's x axis
+    distances: tuple[float, ...] | None = None  # discrete only: the candidates' distances (m), increasing
 
     def __post_init__(self) -> None:
-        if self.shape not in ("square", "circle") or self.frame not in ("rover", "world"):
+        if self.shape not in ACTION_SHAPES or self.frame not in ("rover", "world"):
             raise ValueError(
-                f"action_space: expected shape square|circle and frame rover|world, got {self.shape!r}, {self.frame!r}"
+                f"action_space: expected shape square|circle|discrete and frame rover|world, got {self.shape!r}, "
+                f"{self.frame!r}"
             )
+        if self.shape == "discrete" and not (self.headings and self.distances):
+            raise ValueError("action_space: a discrete action space needs headings and distances")
 
     @property
     def extent(self) -> float:
-        """Half side of the square or radius of the disc (m)."""
+        """Half side of the square, radius of the disc, or the farthest candidate (m)."""
+        if self.shape == "discrete":
+            return float(max(self.distances or (0.0,)))
         return self.size / 2.0 if self.shape == "square" else self.radius
 
 
@@ -160,6 +174,7 @@ class PolicySpec:
     def to_json(self) -> str:
         node = asdict(self)
         node["sensor"] = {k: v for k, v in node["sensor"].items() if v is not None}  # the other type's fields
+        node["action_space"] = {k: v for k, v in node["action_space"].items() if v is not None}  # discrete's
         return json.dumps(node, indent=1) + "\n"
 
     def save(self, path: str | Path) -> Path:
@@ -177,6 +192,9 @@ class PolicySpec:
             sensor["mount_xyz"] = tuple(float(v) for v in _need(sensor, "mount_xyz", f"{where}.sensor"))
             enc = dict(_need(node, "encoding", where))
             enc["shape"] = tuple(int(v) for v in _need(enc, "shape", f"{where}.encoding"))
+            action = dict(_need(node, "action_space", where))
+            if action.get("distances") is not None:
+                action["distances"] = tuple(float(v) for v in action["distances"])
             rest = {k: v for k, v in node.items() if k not in ("sensor", "encoding", "action_space")}
             for key in ("goal_low", "goal_high", "goal_keys"):
                 if key in rest:
@@ -184,7 +202,7 @@ class PolicySpec:
             return cls(
                 sensor=SensorSpec(**sensor),
                 encoding=EncodingSpec(**enc),
-                action_space=ActionSpec(**_need(node, "action_space", where)),
+                action_space=ActionSpec(**action),
                 **rest,
             )
         except TypeError as exc:  # an unknown or missing dataclass field

@@ -3,7 +3,9 @@
 One step hands the agent's waypoint to the turn-then-drive position controller and runs it to the end
 (reached, given up, or a failure). The observation is a dict: ``goal`` (the goal relative to the rover's pose
 estimate, plus its attitude) and the sensor encoding under the encoding's name (``depth_image``,
-``elevation_map`` or ``points``).
+``elevation_map`` or ``points``). The action names the waypoint (:mod:`diana_lab.envs.action_spaces`): a
+``Box(-1, 1, (2,))`` point of the square or disc, or with ``action_space=discrete`` a ``Discrete(n)`` index into
+a table of candidate waypoints.
 
 Episode outcomes (``info["outcome"]`` on the last step): ``success``, ``collision``, ``tipover``,
 ``out_of_bounds``, ``sim_error`` (terminated); ``timeout`` (step or time limit) and ``stuck`` (no net progress
@@ -103,7 +105,7 @@ class RoverNavEnv(gym.Env):
                 self.sensor_key: self.sensor.observation_space,
             }
         )
-        self.action_space = spaces.Box(-1.0, 1.0, shape=(2,), dtype=np.float32)
+        self.action_space = self.mapping.space  # Box(-1, 1, (2,)), or Discrete(n) over the candidate waypoints
         self._episode: Episode | None = None
         # per-env constants of the step path (looked up once: the step runs ~1,000 times a second)
         self._goal_low = goal_low.astype(np.float64)
@@ -178,7 +180,7 @@ class RoverNavEnv(gym.Env):
         self._start_distance = self._distance
         return obs, self._info(None, None, None, {})
 
-    def step(self, action: np.ndarray) -> tuple[dict, float, bool, bool, dict]:
+    def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._episode is None:
             raise RuntimeError("step() called before reset()")
         est, prev_distance = self._estimate, self._distance

@@ -207,7 +207,10 @@ class AStarOracle:
         self.waypoints = np.asarray(base.goal, dtype=np.float64)[None, :]  # if nothing else: head for the goal
         for cm in self._known(env, self.costmaps(env)):
             if self.receding:
-                wp = next_waypoint(cm, start, base.goal, reach, weighted=True, snap=self.snap)
+                choices = None
+                if base.mapping.discrete:  # choose among the actions the policy has, not the nearest to a free point
+                    choices = np.asarray(start, dtype=np.float64) + base.mapping.world_offsets(base.pose_estimate.yaw)
+                wp = next_waypoint(cm, start, base.goal, reach, weighted=True, snap=self.snap, candidates=choices)
                 if wp is not None:
                     self.waypoints = wp[None, :]
                     break

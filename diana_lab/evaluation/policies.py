@@ -1,9 +1,10 @@
 """Policies the evaluation can run: two classical baselines and a wrapper around Stable-Baselines3 models.
 
-Every policy turns an observation into the env's normalised action; the baselines read what a classical
-stack would know instead (the pose estimate and the goal; the oracle also the whole cost map) and express
-their waypoint through ``env.mapping.action_for``, so they drive through exactly the same action space,
-controller and dynamics as the learnt policies.
+Every policy turns an observation into the env's action (a normalised point, or a candidate index with
+``action_space=discrete``); the baselines read what a classical stack would know instead (the pose estimate
+and the goal; the oracle also the whole cost map) and express their waypoint through
+``env.mapping.action_for``, so they drive through exactly the same action space, controller and dynamics as
+the learnt policies.
 
 * :class:`StraightLine` -- a blind position controller: the next waypoint lies on the straight line to the
   goal, as far as the action space reaches. It collides with, tips over on or gets stuck at whatever lies
@@ -36,8 +37,9 @@ def waypoint_action(env: gym.Env, target: np.ndarray) -> np.ndarray:
     """The action that sends the rover towards world point ``target``, shortened to the action space's reach.
 
     The offset is scaled down to the action space's extent along its own direction (the disc inscribed in
-    the square, or the circle) before :meth:`WaypointMapping.action_for`, which would otherwise clip each
-    axis of a square separately and bend the heading.
+    the square, the circle, or the farthest candidate) before :meth:`WaypointMapping.action_for`, which would
+    otherwise clip each axis of a square separately and bend the heading. Continuous: a float32 ``(2,)``
+    array; discrete: the nearest candidate's index, an int64 array of shape ``()`` (what ``Discrete`` holds).
     """
     base = env.unwrapped
     est = base.pose_estimate
@@ -46,7 +48,8 @@ def waypoint_action(env: gym.Env, target: np.ndarray) -> np.ndarray:
     reach = base.mapping.extent * (1.0 - 1e-6)
     if norm > reach:
         offset = offset * (reach / norm)
-    return base.mapping.action_for(offset, est.yaw).astype(np.float32)
+    action = base.mapping.action_for(offset, est.yaw)
+    return action if base.mapping.discrete else action.astype(np.float32)
 
 
 class StraightLine:
@@ -74,6 +77,7 @@ class SB3Policy:
     def __init__(self, model: Any, vecnormalize: Any = None, deterministic: bool = True, seed: int = 0) -> None:
         self.model, self.vecnormalize = model, vecnormalize
         self.deterministic, self.seed = deterministic, seed
+        self.discrete = isinstance(getattr(model, "action_space", None), gym.spaces.Discrete)
         self._episodes = 0
 
     def reset(self, env: gym.Env) -> None:
@@ -87,4 +91,6 @@ class SB3Policy:
         if self.vecnormalize is not None and getattr(self.vecnormalize, "norm_obs", False):
             obs = self.vecnormalize.normalize_obs(obs)
         action, _ = self.model.predict(obs, deterministic=self.deterministic)
+        if self.discrete:
+            return np.asarray(action, dtype=np.int64).reshape(())  # a candidate index, never a float
         return np.asarray(action, dtype=np.float32).reshape(-1)

@@ -343,13 +343,16 @@ def next_waypoint(
     snap: float = 0.0,
     angles: int = 72,
     rings: int = 4,
+    candidates: np.ndarray | None = None,
 ) -> np.ndarray | None:
     """The best next waypoint within ``reach`` of ``start_xy`` on the way to ``goal_xy``, or None.
 
     Candidates lie on ``rings`` circles up to ``reach`` (``angles`` per circle, plus the goal when within
     reach); the best minimises the exact cost of the straight segment to it plus the least cost from its
     cell to the goal -- a one-step any-angle look-ahead on the cost-to-go field -- unless the straight line to
-    the goal costs no more, which is then followed.
+    the goal costs no more, which is then followed. Given ``candidates`` (world points, ``(n, 2)``: a
+    discrete action space's waypoints), the best of exactly those is returned (``reach`` unused), so an
+    expert labels with an action the learner can take, not the nearest one to a waypoint it cannot.
 
     Why not :func:`plan`: an expert asked for the next waypoint from every state an episode visits (DAgger
     labels the learner's states, not its own) would run a search and a smoothing per step (10-30 ms on the
@@ -364,14 +367,17 @@ def next_waypoint(
     to_go, _ = _search(costmap, g, weighted)
     if not np.isfinite(to_go[s]):
         return None
-    theta = np.arange(angles) * (2.0 * math.pi / angles)
-    radius = reach * np.arange(1, rings + 1) / rings
-    cand = start + (radius[:, None, None] * np.stack([np.cos(theta), np.sin(theta)], axis=-1)).reshape(-1, 2)
+    if candidates is None:
+        theta = np.arange(angles) * (2.0 * math.pi / angles)
+        radius = reach * np.arange(1, rings + 1) / rings
+        cand = start + (radius[:, None, None] * np.stack([np.cos(theta), np.sin(theta)], axis=-1)).reshape(-1, 2)
+    else:
+        cand = np.asarray(candidates, dtype=np.float64).reshape(-1, 2)
     ix, iy = costmap.world_to_cell(cand[:, 0], cand[:, 1])
     inside = costmap.inside(ix, iy)
     cand, ix, iy = cand[inside], np.asarray(ix)[inside], np.asarray(iy)[inside]
     remaining = to_go[np.ravel_multi_index((iy, ix), costmap.shape)]
-    if math.dist(start, goal) <= reach:
+    if candidates is None and math.dist(start, goal) <= reach:
         cand, remaining = np.vstack([cand, goal]), np.append(remaining, 0.0)
     finite = np.isfinite(remaining)
     cand, remaining = cand[finite], remaining[finite]
@@ -380,14 +386,22 @@ def next_waypoint(
     cells = _cell_costs(costmap, weighted)
     total = _segment_costs(cells, costmap, np.broadcast_to(start, cand.shape), cand) + remaining
     best = int(np.argmin(total))
+    if not np.isfinite(total[best]):
+        return None
     # the grid's cost-to-go overestimates off-axis paths (by up to 8 %), which would bend the way round
     # open ground towards the grid axes; when the straight line to the goal is no dearer, take it (the
-    # slack: a candidate inside the goal's cell counts nothing for the rest of that cell)
+    # slack: a candidate inside the goal's cell counts nothing for the rest of that cell) -- or, among
+    # given candidates, the traversable one nearest to where that line would lead
     direct = float(_segment_costs(cells, costmap, start[None], goal[None])[0])
     if direct <= total[best] + costmap.resolution * float(cells.flat[g]):
         d = math.dist(start, goal)
-        return goal.copy() if d <= reach else start + (goal - start) * (reach / d)
-    return cand[best].copy() if np.isfinite(total[best]) else None
+        if candidates is None:
+            return goal.copy() if d <= reach else start + (goal - start) * (reach / d)
+        far = float(np.max(np.hypot(*(cand - start).T)))
+        aim = goal if d <= far else start + (goal - start) * (far / d)
+        gaps = np.where(np.isfinite(total), np.hypot(*(cand - aim).T), np.inf)
+        return cand[int(np.argmin(gaps))].copy()
+    return cand[best].copy()
 
 
 def shortest_path_length(

@@ -9,8 +9,12 @@ policy over the learner's own observations:
 * iteration ``k`` drives the training envs with the expert's action with probability
   ``beta * beta_decay**k`` and the learner's otherwise (``k = 0`` is plain behaviour cloning), recording the
   expert's label for every observation the learner saw;
-* after each iteration the policy is fitted by regression of its deterministic action on every label
-  gathered so far (the aggregated data set), through the same VecNormalize statistics RL will use.
+* after each iteration the policy is fitted to every label gathered so far (the aggregated data set),
+  through the same VecNormalize statistics RL will use: by regression of its deterministic action (MSE) for
+  a continuous action space, by cross-entropy of its action logits for ``action_space=discrete``, whose
+  labels are the candidates nearest to the expert's waypoints (the expert speaks through
+  ``WaypointMapping.action_for``). Regression averages a multimodal expert's choices; a categorical head
+  picks one of them.
 
 The labels travel in ``info["expert_action"]`` from :class:`ExpertLabels`, a wrapper inside each training
 env, so imitation runs through the very VecEnv (and subprocesses) that RL uses next. The expert is
@@ -69,17 +73,21 @@ class ExpertLabels(gym.Wrapper):
     def set_labelling(self, on: bool) -> None:
         self.labelling = bool(on)
 
+    def _label(self, obs: Any) -> np.ndarray:
+        """The expert's action in the env's action dtype: float32 ``(2,)``, or an int64 candidate index."""
+        return np.asarray(self.expert.act(obs, self.env), dtype=_label_dtype(self.action_space))
+
     def reset(self, **kwargs: Any) -> tuple[Any, dict]:
         obs, info = self.env.reset(**kwargs)
         if self.labelling:
             self.expert.reset(self.env)
-            info[LABEL_KEY] = np.asarray(self.expert.act(obs, self.env), dtype=np.float32)
+            info[LABEL_KEY] = self._label(obs)
         return obs, info
 
     def step(self, action: Any) -> tuple[Any, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         if self.labelling and not (terminated or truncated):
-            info[LABEL_KEY] = np.asarray(self.expert.act(obs, self.env), dtype=np.float32)
+            info[LABEL_KEY] = self._label(obs)
         return obs, reward, terminated, truncated, info
 
 
@@ -92,12 +100,16 @@ class ImitationResult:
     history: list[dict[str, float]] = field(default_factory=list)  # one row per iteration
 
 
+def _label_dtype(space: gym.Space) -> type:
+    return np.int64 if isinstance(space, gym.spaces.Discrete) else np.float32
+
+
 class _Dataset:
     """The aggregated (raw observation, expert action) pairs, preallocated for every iteration's steps."""
 
-    def __init__(self, space: gym.spaces.Dict, capacity: int, n_actions: int) -> None:
+    def __init__(self, space: gym.spaces.Dict, capacity: int, action_space: gym.Space) -> None:
         self.obs = {k: np.zeros((capacity, *s.shape), dtype=np.float32) for k, s in space.spaces.items()}
-        self.actions = np.zeros((capacity, n_actions), dtype=np.float32)
+        self.actions = np.zeros((capacity, *action_space.shape), dtype=_label_dtype(action_space))
         self.size = 0
 
     def add(self, obs: dict[str, np.ndarray], actions: np.ndarray) -> None:
@@ -111,8 +123,9 @@ class _Dataset:
         return {k: v[idx] for k, v in self.obs.items()}, self.actions[idx]
 
 
-def _labels(infos: Any, n: int) -> np.ndarray:
-    out = np.zeros((n, 2), dtype=np.float32)
+def _labels(infos: Any, space: gym.Space) -> np.ndarray:
+    """The expert labels of a VecEnv step: ``(n, 2)`` float32 actions, or ``(n,)`` int64 candidate indices."""
+    out = np.zeros((len(infos), *space.shape), dtype=_label_dtype(space))
     for i, info in enumerate(infos):
         if LABEL_KEY not in info:
             raise RuntimeError(
@@ -123,8 +136,18 @@ def _labels(infos: Any, n: int) -> np.ndarray:
     return out
 
 
+def _loss(policy: Any, obs: dict[str, torch.Tensor], target: np.ndarray) -> torch.Tensor:
+    """Cross-entropy of the action logits on candidate indices (a categorical policy), else the MSE of the
+    deterministic action (the Gaussian mean, or tanh of it) on the expert's actions."""
+    if isinstance(policy.action_space, gym.spaces.Discrete):
+        logits = policy.get_distribution(obs).distribution.logits
+        return torch.nn.functional.cross_entropy(logits, torch.as_tensor(target, device=logits.device))
+    pred = policy._predict(obs, deterministic=True)  # differentiable
+    return torch.nn.functional.mse_loss(pred, torch.as_tensor(target, device=pred.device))
+
+
 def _fit(model: BaseAlgorithm, data: _Dataset, cfg: ImitationConfig, rng: np.random.Generator) -> float:
-    """Regress the policy's deterministic action on the labels; the mean loss of the last epoch."""
+    """Fit the policy to the labels (see :func:`_loss`); the mean loss of the last epoch."""
     policy = model.policy
     vecnorm = model.get_vec_normalize_env()
     optimizer = torch.optim.Adam(policy.parameters(), lr=cfg.learning_rate)
@@ -138,8 +161,7 @@ def _fit(model: BaseAlgorithm, data: _Dataset, cfg: ImitationConfig, rng: np.ran
             if vecnorm is not None:
                 obs = vecnorm.normalize_obs(obs)
             obs_t, _ = policy.obs_to_tensor(obs)
-            pred = policy._predict(obs_t, deterministic=True)  # differentiable: the mean (or tanh of it)
-            loss = torch.nn.functional.mse_loss(pred, torch.as_tensor(target, device=pred.device))
+            loss = _loss(policy, obs_t, target)
             optimizer.zero_grad()
             loss.backward()
             torch.nn.utils.clip_grad_norm_(policy.parameters(), 1.0)
@@ -167,14 +189,14 @@ def imitate(
     space = venv.observation_space
     if not isinstance(space, gym.spaces.Dict):
         raise TypeError(f"train.imitation: expected a Dict observation space, got {space}")
-    data = _Dataset(space, cfg.iterations * per_env * n_envs, int(np.prod(venv.action_space.shape)))
+    data = _Dataset(space, cfg.iterations * per_env * n_envs, venv.action_space)
     rng = np.random.default_rng(seed)
     vecnorm = model.get_vec_normalize_env()
     result = ImitationResult()
     t0 = time.perf_counter()
     obs = venv.reset()
     base = venv.unwrapped  # VecEnvWrappers (VecNormalize) keep a reset_infos of their own that stays empty
-    labels = _labels(base.reset_infos, n_envs)
+    labels = _labels(base.reset_infos, venv.action_space)
     for it in range(cfg.iterations):
         beta = cfg.beta * cfg.beta_decay**it
         outcomes: dict[str, int] = {}
@@ -197,7 +219,7 @@ def imitate(
                     outcome = str(infos[i].get("outcome"))
                     outcomes[outcome] = outcomes.get(outcome, 0) + 1
                 next_labels.append(base.reset_infos[i] if done else infos[i])
-            labels = _labels(next_labels, n_envs)
+            labels = _labels(next_labels, venv.action_space)
         loss = _fit(model, data, cfg, rng)
         episodes = sum(outcomes.values())
         row = {

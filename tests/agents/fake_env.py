@@ -21,7 +21,10 @@ SENSOR_SPACES = {
 
 
 class FakeRoverEnv(gym.Env):
-    def __init__(self, sensor_key: str = "depth_image", episode_steps: int = 8) -> None:
+    """``candidates``: a ``Discrete`` action space of that many waypoints (``action_space=discrete``), whose
+    action 0 plays the part of a positive first action component."""
+
+    def __init__(self, sensor_key: str = "depth_image", episode_steps: int = 8, candidates: int | None = None) -> None:
         self.observation_space = spaces.Dict(
             {
                 "goal": spaces.Box(
@@ -32,7 +35,9 @@ class FakeRoverEnv(gym.Env):
                 sensor_key: SENSOR_SPACES[sensor_key],
             }
         )
-        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.action_space = (
+            spaces.Box(-1.0, 1.0, (2,), np.float32) if candidates is None else spaces.Discrete(candidates)
+        )
         self.episode_steps, self._t = episode_steps, 0
 
     def _obs(self) -> dict:
@@ -47,8 +52,9 @@ class FakeRoverEnv(gym.Env):
     def step(self, action):
         self._t += 1
         done = self._t >= self.episode_steps
-        success = bool(action[0] > 0)
-        info = {"reward_terms": {"progress": float(action[0]), "step": -0.05}}
+        progress = float(action[0]) if isinstance(self.action_space, spaces.Box) else 1.0 - 2.0 * (int(action) != 0)
+        success = progress > 0
+        info = {"reward_terms": {"progress": progress, "step": -0.05}}
         if done:
             info.update(outcome="success" if success else "timeout", is_success=success)
-        return self._obs(), float(action[0]) - 0.05, done and success, done and not success, info
+        return self._obs(), progress - 0.05, done and success, done and not success, info

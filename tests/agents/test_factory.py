@@ -51,6 +51,39 @@ def test_tiny_ppo_learns_on_fake_env():
     assert model.num_timesteps == 64
 
 
+@pytest.mark.parametrize("name", ["ppo", "a2c"])
+def test_on_policy_algos_build_a_categorical_policy_for_discrete_waypoints(name):
+    env = make_vec_env(lambda: FakeRoverEnv("depth_image", candidates=48), n_envs=2, seed=0)
+    tiny = [
+        "algo.n_steps=16",
+        "algo.net_arch=[16]",
+        *(["algo.batch_size=32", "algo.n_epochs=1"] if name == "ppo" else []),
+    ]
+    model = build_model(algo_cfg(name, *tiny), env, seed=0)
+    assert type(model.policy.action_dist).__name__ == "CategoricalDistribution"
+    assert getattr(model.policy, "log_std", None) is None  # nothing Gaussian left for imitation to set
+    action, _ = model.predict(env.reset(), deterministic=True)
+    assert action.shape == (2,) and action.dtype == np.int64 and np.all((action >= 0) & (action < 48))
+    model.learn(64)
+    assert model.num_timesteps == 64
+
+
+@pytest.mark.parametrize("name", ["sac", "td3", "ddpg", "tqc"])
+def test_off_policy_algos_refuse_discrete_waypoints_naming_both_keys(name):
+    env = make_vec_env(lambda: FakeRoverEnv("depth_image", candidates=48), n_envs=1, seed=0)
+    with pytest.raises(ConfigError, match=rf"algo={name} with action_space\.shape=discrete.*algo=ppo or algo=a2c"):
+        build_model(algo_cfg(name), env, seed=0)
+
+
+def test_gaussian_policy_kwargs_are_refused_for_discrete_waypoints():
+    env = make_vec_env(lambda: FakeRoverEnv("depth_image", candidates=48), n_envs=1, seed=0)
+    with pytest.raises(ConfigError, match=r"algo\.policy_kwargs\.log_std_init.*discrete"):
+        build_model(algo_cfg("ppo", "+algo.policy_kwargs.log_std_init=-1.0"), env, seed=0)
+    box = make_vec_env(lambda: FakeRoverEnv("depth_image"), n_envs=1, seed=0)  # a Gaussian policy takes it
+    model = build_model(algo_cfg("ppo", "+algo.policy_kwargs.log_std_init=-1.0"), box, seed=0)
+    assert float(model.policy.log_std.detach()[0]) == -1.0
+
+
 @pytest.mark.parametrize(
     ("override", "key"),
     [

@@ -50,12 +50,35 @@ def test_default_config_validates_every_group():
         (["episode.min_distance=30", "episode.max_distance=8"], "episode.min_distance"),
         (["episode.max_steps=0"], "episode.max_steps"),
         (["action_space.size=0"], "action_space.size"),
+        (["action_space=discrete", "action_space.headings=1"], "action_space.headings"),
+        (["action_space=discrete", "action_space.distances=[1.0,4.0]"], "action_space.distances[1]"),
+        (["action_space=discrete", "action_space.distances=[]"], "action_space.distances"),
+        (["action_space=discrete", "action_space.min_distance=0.5"], "action_space.min_distance"),
     ],
 )
 def test_impossible_values_name_the_key(overrides, key):
     cfg = compose(overrides)
     with pytest.raises(ConfigError, match=key.replace(".", r"\.").replace("[", r"\[")):
         validate(cfg)
+
+
+def test_discrete_action_space_composes_with_the_on_policy_algos_only():
+    for algo in ("ppo", "a2c"):
+        objects = validate(compose(["action_space=discrete", f"algo={algo}"]), [*GROUPS, "algo"])
+        action = objects["action_space"]
+        assert (action.shape, action.headings, action.distances, action.frame) == (
+            "discrete",
+            16,
+            [1.0, 2.0, 3.0],
+            "rover",
+        )
+    for algo in ("sac", "td3", "ddpg", "tqc"):
+        cfg = compose(["action_space=discrete", f"algo={algo}"])
+        with pytest.raises(ConfigError, match=rf"^algo={algo} with action_space\.shape=discrete"):
+            validate(cfg, [*GROUPS, "algo"])
+        validate(cfg, GROUPS)  # the env groups alone are fine: the pairing is what cannot work
+    with pytest.raises(ConfigError, match=r"algo\.policy_kwargs\.log_std_init"):
+        validate(compose(["action_space=discrete", "+algo.policy_kwargs.log_std_init=-2"]), ["action_space", "algo"])
 
 
 @pytest.mark.parametrize(

@@ -18,6 +18,9 @@ from diana_lab.envs.action_spaces import WaypointMapping
 from diana_lab.envs.action_spaces import square_to_disc as square_to_disc_np
 from diana_lab.export import main
 
+from .conftest import export_run
+from .helpers import run_config
+
 
 @pytest.mark.parametrize(("in_hw", "out_hw"), [((14, 14), (3, 4)), ((6, 8), (3, 4)), ((5, 7), (5, 2))])
 def test_matmul_pool_equals_adaptive_average_pool(in_hw, out_hw):
@@ -71,6 +74,61 @@ def test_the_graph_takes_any_batch_and_maps_actions_like_the_env(depth_run):
     np.testing.assert_allclose(single[0], offset[2], atol=1e-6)
     mapping = WaypointMapping(to_object("action_space", compose([]).action_space))
     np.testing.assert_allclose(offset, [mapping.offset(a, 0.0) for a in action], atol=1e-5)
+
+
+@pytest.fixture(scope="module")
+def discrete_run(tmp_path_factory, small_world):
+    """A tiny categorical policy over 8 headings x 2 distances in the world frame, exported by the CLI."""
+    overrides = ["action_space=discrete", "action_space.headings=8", "action_space.distances=[1.5,3.0]"]
+    run = export_run(
+        tmp_path_factory.mktemp("discrete_run"), run_config(*overrides, "action_space.frame=world"), small_world
+    )
+    yield run
+    run.env.close()
+
+
+def test_a_discrete_policys_graph_gathers_the_argmax_candidate(discrete_run):
+    node = json.loads(sidecar_path(discrete_run.onnx).read_text())
+    assert node["action_space"] == {
+        "shape": "discrete",
+        "size": 7.0,
+        "radius": 4.0,
+        "frame": "world",
+        "min_distance": 0.0,
+        "headings": 8,
+        "distances": [1.5, 3.0],
+    }
+    assert node["outputs"] == {"offset": [-1, 2], "action": [-1]}
+    spec = PolicySpec.load(sidecar_path(discrete_run.onnx))
+    assert spec.action_space.distances == (1.5, 3.0) and spec.action_space.extent == 3.0
+    assert PolicySpec.from_dict(json.loads(spec.to_json())) == spec
+    session = ort.InferenceSession(str(discrete_run.onnx), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(0)
+    goal = rng.uniform(-1, 1, (32, 7)).astype(np.float32)
+    image = rng.uniform(0, 1, (32, 1, 48, 64)).astype(np.float32)
+    offset, action = session.run(["offset", "action"], {"goal": goal, "depth_image": image})
+    assert action.shape == (32,) and action.dtype == np.int64 and len(set(action.tolist())) > 1
+    mapping = discrete_run.env.mapping
+    np.testing.assert_allclose(offset, mapping.candidates[action], atol=1e-6)
+    # the graph's choice is the torch policy's deterministic action (model.predict, through VecNormalize)
+    policy = discrete_run.loaded.policy
+    for i in range(len(goal)):
+        want = policy.act({"goal": goal[i], "depth_image": image[i]}, discrete_run.env)
+        assert want.dtype == np.int64 and want.shape == () and int(want) == action[i]
+
+
+def test_export_refuses_an_action_space_the_policy_was_not_trained_with(depth_run, discrete_run, tmp_path):
+    groups = compose([])
+    sensor, episode = to_object("sensor", groups.sensor), to_object("episode", groups.episode)
+    square = to_object("action_space", groups.action_space)
+    other = to_object("action_space", compose(["action_space=discrete"]).action_space)  # 48 candidates, not 16
+    with pytest.raises(ConfigError, match=r"categorical policy over 16 candidates.*gives 48 candidates"):
+        export_policy(discrete_run.loaded.model, None, sensor, other, episode, tmp_path / "p.onnx")
+    with pytest.raises(ConfigError, match=r"over 16 candidates.*action_space\.shape=square"):
+        export_policy(discrete_run.loaded.model, None, sensor, square, episode, tmp_path / "p.onnx")
+    with pytest.raises(ConfigError, match=r"continuous \(2,\) action, but action_space\.shape=discrete"):
+        export_policy(depth_run.loaded.model, None, sensor, other, episode, tmp_path / "p.onnx")
+    assert not (tmp_path / "p.onnx").exists()
 
 
 def test_export_refuses_baselines_missing_policies_and_other_sensors(depth_run, tmp_path):

@@ -89,6 +89,8 @@ CASES = {
     ],
     # the paper's 112 x 112 camera: its adaptive pool does not divide, the graph holds the matmul form
     "paper_camera_circle": ["sensor=depth_camera_paper", "action_space=circle"],
+    # a categorical A2C policy over 16 x 3 candidate waypoints: the graph's argmax and candidate lookup
+    "camera_discrete_a2c": ["action_space=discrete", "algo=a2c"],
 }
 SLOW_CASES = {
     "lidar_depth_image": ["sensor=lidar3d"],

@@ -24,7 +24,8 @@ def goal_seeking_action(env: RoverNavEnv) -> np.ndarray:
     extent = env.mapping.extent * 0.9
     if np.hypot(*offset) > extent:
         offset = offset / np.hypot(*offset) * extent
-    return env.mapping.action_for(offset, est.yaw).astype(np.float32)
+    action = env.mapping.action_for(offset, est.yaw)
+    return action if env.mapping.discrete else action.astype(np.float32)
 
 
 def test_gym_make_works_with_defaults():
@@ -67,6 +68,18 @@ GRID = [  # every option of every group at least once (world x robot x dynamics 
         "sensor=lidar3d",
         "sensor.encoding=elevation_map",
         "action_space.frame=world",
+    ],
+    ["world=hills", "robot=jackal", "dynamics=kinematic", "action_space=discrete", "sensor=depth_camera"],
+    [
+        "world=flat",
+        "robot=husky",
+        "dynamics=kinematic",
+        "action_space=discrete",
+        "action_space.frame=world",
+        "action_space.headings=8",
+        "action_space.distances=[2.5]",
+        "sensor=lidar3d",
+        "sensor.encoding=elevation_map",
     ],
 ]
 
@@ -111,6 +124,25 @@ def test_scripted_goal_seeking_policy_succeeds_on_flat(dynamics):
     env.close()
 
 
+def test_discrete_waypoints_drive_a_scripted_policy_to_the_goal():
+    env = make(action_space="discrete")
+    assert env.action_space == gym.spaces.Discrete(48)
+    for seed in range(4):
+        env.reset(seed=seed)
+        for _ in range(env.episode_cfg.max_steps):
+            action = goal_seeking_action(env)
+            assert env.action_space.contains(action)
+            before = env.pose_estimate
+            _, _, terminated, truncated, info = env.step(action)
+            # the waypoint is the candidate, turned by the rover's heading (inside the map: no clamp here)
+            want = before.xy + env.mapping.offset(action, before.yaw)
+            np.testing.assert_allclose(info["waypoint"], want)
+            if terminated or truncated:
+                break
+        assert info.get("outcome") == "success"
+    env.close()
+
+
 def test_info_carries_what_evaluation_needs():
     env = make()
     env.reset(seed=1)
@@ -147,6 +179,12 @@ def test_bad_actions_raise_a_clear_error():
     env.reset(seed=0)
     with pytest.raises(ActionError, match="finite"):
         env.step(np.array([np.nan, 0.0]))
+    env = make(action_space="discrete")
+    env.reset(seed=0)
+    with pytest.raises(ActionError, match=r"integer candidate index in \[0, 48\)"):
+        env.step(np.array([1.0, 0.0], dtype=np.float32))  # a continuous policy's action on a discrete env
+    with pytest.raises(ActionError, match="outside"):
+        env.step(48)
 
 
 def test_waypoints_are_clamped_to_the_map():

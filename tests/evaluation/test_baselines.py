@@ -1,8 +1,11 @@
 import math
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
+from diana_lab.config import compose
+from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.evaluation import (
     AStarOracle,
     EpisodeSpec,
@@ -12,6 +15,7 @@ from diana_lab.evaluation import (
     waypoint_action,
 )
 from diana_lab.evaluation.policies import SB3Policy
+from tests.evaluation.conftest import SMALL_FLAT, small_env, wall_world
 
 WALL_EPISODE = EpisodeSpec(np.array([-4.0, 0.5]), 0.3, np.array([4.0, -0.5]), seed=3)
 
@@ -54,9 +58,32 @@ def test_waypoint_action_keeps_the_heading_to_far_targets(shape):
         env.close()
 
 
+def test_baselines_speak_candidate_indices_to_a_discrete_env():
+    env = small_env("action_space=discrete")
+    wall = RoverNavEnv(config=compose([*SMALL_FLAT, "action_space=discrete"]), world_instance=wall_world())
+    try:
+        obs, _ = env.reset(seed=0, options={"start": [0.0, 0.0], "goal": [8.0, 6.0], "yaw": 0.4})
+        action = StraightLine().act(obs, env)
+        assert action.dtype == np.int64 and action.shape == () and env.action_space.contains(action)
+        offset = env.mapping.offset(action, env.pose_estimate.yaw)
+        # the farthest candidate within half a heading bin (22.5 / 2 deg) of the goal's bearing
+        assert np.hypot(*offset) == pytest.approx(env.mapping.extent)
+        assert abs(math.atan2(offset[1], offset[0]) - math.atan2(6.0, 8.0)) <= math.pi / 16 + 1e-9
+        near = env.mapping.offset(waypoint_action(env, np.array([1.0, 0.3])), env.pose_estimate.yaw)
+        assert np.hypot(*(near - [1.0, 0.3])) < 0.3  # the nearest candidate to a near target
+        # the expert imitation learns from drives round the wall through the candidates too
+        df, _ = run_episodes(AStarOracle(receding=True, spacing=0.8), wall, [WALL_EPISODE])
+        assert df.iloc[0].outcome == "success", df.iloc[0].to_dict()
+    finally:
+        env.close()
+        wall.close()
+
+
 class FakeModel:
-    def __init__(self):
+    def __init__(self, action_space=None):
         self.seen = []
+        if action_space is not None:
+            self.action_space = action_space
 
     def predict(self, obs, deterministic=True):
         self.seen.append((obs, deterministic))
@@ -80,6 +107,17 @@ def test_sb3_policy_normalises_observations_and_predicts_deterministically(flat_
     seen, deterministic = model.seen[0]
     assert deterministic and np.all(seen["goal"] == 7.0)
     assert not np.all(obs["goal"] == 7.0)  # the env's observation itself is left alone
+
+
+def test_sb3_policy_returns_a_candidate_index_for_a_categorical_model(flat_env):
+    class DiscreteModel(FakeModel):
+        def predict(self, obs, deterministic=True):
+            return np.array(5), None  # what SB3 returns for one observation of a Discrete space
+
+    policy = SB3Policy(DiscreteModel(gym.spaces.Discrete(48)), deterministic=True)
+    obs, _ = flat_env.reset(seed=0)
+    action = policy.act(obs, flat_env)
+    assert action.dtype == np.int64 and action.shape == () and int(action) == 5
 
 
 def test_receding_oracle_drives_round_the_wall_too(wall_env):
@@ -109,3 +147,24 @@ def test_oracle_knowledge_radius_hides_the_wall_until_it_is_near(wall_env):
         AStarOracle(knowledge_radius=0.0)
     with pytest.raises(ValueError, match="knowledge_fov_deg"):
         AStarOracle(knowledge_radius=5.0, knowledge_fov_deg=400.0)
+
+
+def test_receding_oracle_chooses_among_the_discrete_candidates_themselves():
+    # not the nearest candidate to a free waypoint: the look-ahead scores exactly the actions the policy has
+    wall = RoverNavEnv(
+        config=compose([*SMALL_FLAT, "action_space=discrete", "action_space.headings=32"]), world_instance=wall_world()
+    )
+    try:
+        oracle = AStarOracle(receding=True, spacing=0.8)
+        obs, _ = wall.reset(seed=0, options={"start": [-4.0, 0.5], "goal": [4.0, -0.5], "yaw": 0.3})
+        oracle.reset(wall)
+        for _ in range(5):
+            action = oracle.act(obs, wall)
+            est = wall.pose_estimate
+            offsets = wall.mapping.world_offsets(est.yaw)
+            np.testing.assert_allclose(oracle.waypoints[0] - est.xy, offsets[int(action)], atol=1e-9)
+            obs, _, terminated, truncated, _ = wall.step(action)
+            if terminated or truncated:
+                break
+    finally:
+        wall.close()

@@ -179,3 +179,26 @@ def test_next_waypoint_is_none_without_a_path(jackal):
     assert next_waypoint(cm, np.array([-3.0, 0.0]), np.array([3.0, 0.0]), reach=3.0) is None
     with pytest.raises(ValueError, match="reach"):
         next_waypoint(cm, np.array([-3.0, 0.0]), np.array([-5.0, 0.0]), reach=0.0)
+
+
+def test_next_waypoint_among_candidates_picks_one_of_them_and_goes_round_the_wall(jackal):
+    # a discrete action space's expert: every waypoint is one of the candidates it was offered
+    from diana_lab.envs.action_spaces import candidate_offsets
+    from diana_lab.planning import next_waypoint
+
+    world = flat_world(obstacles=[box(-0.2, 0.2, -11.0, 6.0, 1.0)])  # open only at its north end
+    cm = build_costmap(world, jackal)
+    table = candidate_offsets(32, [1.0, 2.0, 3.0])
+    start, goal = np.array([-3.0, 0.0]), np.array([3.0, 0.0])
+    xy, steps = start.copy(), 0
+    while np.hypot(*(goal - xy)) > 0.5 and steps < 20:
+        choices = xy + table
+        wp = next_waypoint(cm, xy, goal, reach=3.0, candidates=choices)
+        assert wp is not None and np.min(np.hypot(*(choices - wp).T)) == 0.0  # exactly a candidate
+        seg = np.linspace(xy, wp, 50)
+        assert np.all(np.isfinite(cm.cost_at(seg[:, 0], seg[:, 1])))  # never enters the wall's band
+        xy, steps = wp, steps + 1
+    assert np.hypot(*(goal - xy)) <= 0.5
+    assert 6 <= steps <= 12  # round the north end (about 17 m), not a wander
+    # the candidates are all it may choose from: with none traversable there is no answer
+    assert next_waypoint(cm, start, goal, reach=3.0, candidates=np.array([[0.0, 0.0]])) is None

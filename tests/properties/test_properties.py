@@ -39,6 +39,26 @@ def test_waypoints_stay_inside_their_shape(action, yaw, shape, frame):
 
 @FAST
 @given(
+    offset=st.tuples(finite, finite),
+    yaw=angles,
+    frame=st.sampled_from(["rover", "world"]),
+    headings=st.integers(2, 40),
+    distances=st.lists(st.floats(0.05, 3.5), min_size=1, max_size=5, unique=True).map(sorted),
+)
+def test_discrete_actions_are_valid_indices_whose_waypoints_stay_inside_the_square(
+    offset, yaw, frame, headings, distances
+):
+    cfg = {"name": "discrete", "shape": "discrete", "frame": frame, "headings": headings, "distances": distances}
+    mapping = WaypointMapping(to_object("action_space", cfg))
+    action = mapping.action_for(np.array(offset), yaw)
+    assert mapping.space.contains(action)
+    waypoint = mapping.offset(action, yaw)
+    assert np.all(np.isfinite(waypoint))
+    assert min(distances) - 1e-9 <= math.hypot(*waypoint) <= max(distances) + 1e-9  # inside the 7 m square
+
+
+@FAST
+@given(
     prev=st.floats(0, 100),
     dist=st.floats(0, 100),
     heading=angles,

@@ -1,6 +1,7 @@
 """Actions an agent (or a buggy policy) can send, in both dynamics: the defined behaviour of docs/reliability.md.
 
-* NaN or infinite components (or a wrong shape) raise ``ActionError`` before anything moves;
+* NaN or infinite components (or a wrong shape) raise ``ActionError`` before anything moves; so does a
+  candidate index that is not one integer in ``[0, n)`` (``action_space=discrete``);
 * values beyond [-1, 1] are clipped: a huge action drives exactly like the edge of the action space;
 * a waypoint beyond the map is clamped inside it (robot radius + ``episode.map_margin``), so no action
   drives the rover off the map;
@@ -78,6 +79,23 @@ def test_wrongly_shaped_actions_raise(env: RoverNavEnv, action: list) -> None:
     reset_at(env, (0.0, 0.0))
     with pytest.raises(ActionError, match="shape"):
         env.step(np.array(action, dtype=np.float32))
+
+
+@pytest.mark.parametrize("dynamics", DYNAMICS)
+def test_bad_candidate_indices_raise_before_anything_moves(dynamics: str) -> None:
+    e = make_env(dynamics, None, "action_space=discrete")
+    try:
+        reset_at(e, (0.0, 0.0))
+        before = e.dynamics.state.copy()
+        for action in (48, -1, np.float32(2.0), np.nan, np.array([1, 2]), np.array([0.5, 0.0], dtype=np.float32)):
+            with pytest.raises(ActionError, match="action"):
+                e.step(action)
+        np.testing.assert_array_equal(e.dynamics.state.position, before.position)
+        assert e.dynamics.state.time == before.time
+        _, _, _, _, info = e.step(np.int64(47))  # the episode goes on
+        assert info["steps"] == 1
+    finally:
+        e.close()
 
 
 @pytest.mark.parametrize("dynamics", DYNAMICS)

@@ -129,6 +129,36 @@ def test_bad_values_exit_2_without_a_run(override, message, tmp_path, capsys):
     assert not runs(tmp_path)[1]  # validated before any MLflow run is opened
 
 
+def test_an_algo_that_cannot_drive_discrete_waypoints_exits_2_naming_both_keys(tmp_path, capsys):
+    args = ["algo=sac", "action_space=discrete", *TINY, *ALGO_TINY["sac"], *store_args(tmp_path)]
+    assert run_in_process(args) == 2
+    err = capsys.readouterr().err
+    assert "algo=sac with action_space.shape=discrete" in err and "Traceback" not in err
+    assert not runs(tmp_path)[1]
+
+
+def test_discrete_waypoints_train_through_imitation_ppo_and_evaluation(tmp_path):
+    args = [
+        "algo=ppo",
+        "action_space=discrete",
+        *TINY,
+        *ALGO_TINY["ppo"],
+        "algo.normalize=true",
+        "train.imitation.enabled=true",
+        "train.imitation.iterations=2",
+        "train.imitation.steps_per_iteration=64",
+        *store_args(tmp_path),
+    ]
+    assert run_in_process(args) == 0
+    client, (run,) = runs(tmp_path)
+    assert run.info.status == "FINISHED" and run.data.params["action_space.shape"] == "discrete"
+    assert run.data.tags["imitation_steps"] == "128" and "eval_success_rate" in run.data.metrics
+    assert {m.step for m in client.get_metric_history(run.info.run_id, "imitation/loss")} == {0, 1}
+    local = client.download_artifacts(run.info.run_id, "model/model.zip", str(tmp_path / "dl"))
+    model = get_class(CLASSES["ppo"]).load(local, device="cpu")
+    assert model.num_timesteps >= 256 and model.action_space.n == 48
+
+
 def test_subprocess_envs_train_and_stop_cleanly(tmp_path):
     args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.vec_env=subproc", "train.total_timesteps=128", "eval.every=0"]
     assert run_in_process([*args, "train.final_eval=false", *store_args(tmp_path)]) == 0
