@@ -2,7 +2,7 @@
 
 Why: the numpy form (``directions.take(valid) * ranges.take(valid)[:, None] + origin``) makes five
 temporaries and costs ~60 us for a 64 x 48 frame, a fifth of the whole cast; one loop over the rays writes
-the same float32 points (the same two roundings: the product, then the sum) in ~3 us.
+the same float32 points (the same two roundings: the product, then the sum) in ~5 us.
 """
 
 from __future__ import annotations
