@@ -17,6 +17,7 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
+from diana_lab.agents.cost_to_go import CostToGoNet
 from diana_lab.agents.encoders import ImageCNN, PointNet, mlp
 from diana_lab.agents.planner import ValueIterationNet
 from diana_lab.config.validation import ConfigError
@@ -24,6 +25,27 @@ from diana_lab.config.validation import ConfigError
 __all__ = ["SENSOR_KEYS", "RoverExtractor"]
 
 SENSOR_KEYS = ("depth_image", "elevation_map", "points")
+
+
+def _planning_encoder(
+    name: str, shape: tuple, planner: dict | None, cost_to_go: dict | None, out_dim: int
+) -> nn.Module:
+    """The ``vin`` or ``cost_to_go`` encoder of a ``(C, H, W)`` map, its bad settings as :class:`ConfigError`."""
+    if name == "vin":
+        cls, key, given, extra = ValueIterationNet, "planner", planner, {"out_dim": out_dim}
+        needs = "the planner's geometry"
+    else:
+        cls, key, given, extra = CostToGoNet, "cost_to_go", cost_to_go, {}
+        needs = "the map's geometry and the action candidates"
+    if len(shape) != 3 or not given:
+        raise ConfigError(
+            f"algo.extractor: the {name} encoder needs a (C, H, W) map and {needs}, "
+            f"got shape {shape} and {key}={given!r}"
+        )
+    try:
+        return cls(shape[0], shape[1], shape[2], **given, **extra)
+    except ValueError as exc:
+        raise ConfigError(f"algo.extractor.{key}: {exc}") from exc
 
 
 class RoverExtractor(BaseFeaturesExtractor):
@@ -34,9 +56,11 @@ class RoverExtractor(BaseFeaturesExtractor):
         goal_hidden: widths of the goal MLP.
         cnn_channels, cnn_pool: the image CNN's convolution widths and pooled grid (rows, cols).
         sensor_features: output width of every sensor encoder.
-        elevation_encoder: ``"cnn"``, ``"mlp"`` (flattened grid) or ``"vin"`` for ``elevation_map``.
+        elevation_encoder: ``"cnn"``, ``"mlp"`` (flattened grid), ``"vin"`` or ``"cost_to_go"`` for
+            ``elevation_map``.
         point_hidden: widths of PointNet's shared per-point MLP.
         planner: :class:`ValueIterationNet` arguments besides the map's shape (``elevation_encoder="vin"``).
+        cost_to_go: :class:`CostToGoNet` arguments besides the map's shape (``elevation_encoder="cost_to_go"``).
     """
 
     def __init__(
@@ -49,6 +73,7 @@ class RoverExtractor(BaseFeaturesExtractor):
         elevation_encoder: str = "cnn",
         point_hidden: Sequence[int] = (64, 128),
         planner: dict | None = None,
+        cost_to_go: dict | None = None,
     ) -> None:
         if not isinstance(observation_space, gym.spaces.Dict):
             raise ConfigError(f"algo.extractor: expected a Dict observation space, got {observation_space}")
@@ -59,17 +84,9 @@ class RoverExtractor(BaseFeaturesExtractor):
             if key == "goal":
                 encoders[key] = mlp(int(np.prod(shape)), goal_hidden)
                 dims[key] = goal_hidden[-1]
-            elif key == "elevation_map" and elevation_encoder == "vin":
-                if len(shape) != 3 or not planner:
-                    raise ConfigError(
-                        f"algo.extractor: the vin encoder needs a (C, H, W) map and the planner's geometry, "
-                        f"got shape {shape} and planner={planner!r}"
-                    )
-                try:
-                    encoders[key] = ValueIterationNet(shape[0], shape[1], shape[2], out_dim=sensor_features, **planner)
-                except ValueError as exc:
-                    raise ConfigError(f"algo.extractor.planner: {exc}") from exc
-                dims[key] = sensor_features
+            elif key == "elevation_map" and elevation_encoder in ("vin", "cost_to_go"):
+                encoders[key] = _planning_encoder(elevation_encoder, shape, planner, cost_to_go, sensor_features)
+                dims[key] = encoders[key].out_dim
             elif key == "depth_image" or (key == "elevation_map" and elevation_encoder == "cnn"):
                 if len(shape) != 3:
                     raise ConfigError(f"algo.extractor: '{key}' must be (C, H, W), got shape {shape}")
@@ -92,11 +109,16 @@ class RoverExtractor(BaseFeaturesExtractor):
         self.encoders = nn.ModuleDict(encoders)
         self.dims = dims
 
+    def offset(self, key: str) -> int:
+        """Where ``key``'s features start in the concatenated feature vector."""
+        keys = list(self.dims)
+        return sum(self.dims[k] for k in keys[: keys.index(key)])
+
     def forward(self, observations: dict[str, torch.Tensor]) -> torch.Tensor:
         parts = []
         for key, encoder in self.encoders.items():
             x = observations[key]
-            if isinstance(encoder, ValueIterationNet):
+            if isinstance(encoder, (ValueIterationNet, CostToGoNet)):
                 parts.append(encoder(x, observations["goal"].flatten(1)))
             else:
                 parts.append(encoder(x.flatten(1) if key == "goal" else x))

@@ -19,14 +19,21 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
+from diana_lab.agents.cost_to_go import init_policy_head
 from diana_lab.agents.extractors import RoverExtractor
 from diana_lab.config.run import NON_SB3_KEYS, AlgoConfig, check_action_space
+from diana_lab.config.validation import ConfigError
 
 __all__ = ["algo_class", "build_model", "load_model", "policy_kwargs"]
 
 
-def policy_kwargs(cfg: AlgoConfig) -> dict[str, Any]:
-    """``MultiInputPolicy`` kwargs: our extractor, the head sizes and any extra ``algo.policy_kwargs``."""
+def policy_kwargs(
+    cfg: AlgoConfig, n_actions: int | None = None, candidates: np.ndarray | None = None
+) -> dict[str, Any]:
+    """``MultiInputPolicy`` kwargs: our extractor, the head sizes and any extra ``algo.policy_kwargs``.
+
+    ``n_actions``, ``candidates``: a discrete action space's size and ``(n, 2)`` waypoint offsets, which the
+    ``cost_to_go`` encoder scores."""
     ext = cfg.extractor
     kwargs: dict[str, Any] = {
         "features_extractor_class": RoverExtractor,
@@ -51,6 +58,24 @@ def policy_kwargs(cfg: AlgoConfig) -> dict[str, Any]:
             "patch": p.patch,
             **p.geometry(),
         }
+    if ext.elevation_encoder == "cost_to_go":
+        c = ext.cost_to_go
+        if n_actions is None or candidates is None:
+            raise ConfigError(
+                "algo.extractor.elevation_encoder=cost_to_go needs action_space=discrete (its candidates)"
+            )
+        kwargs["features_extractor_kwargs"]["cost_to_go"] = {
+            "pool": c.pool,
+            "hidden": c.hidden,
+            "iterations": c.iterations,
+            "grad_iterations": c.grad_iterations,
+            "max_cost": c.max_cost,
+            "candidates": np.asarray(candidates, dtype=float).tolist(),
+            **c.geometry(),
+        }
+        # the logits read the candidates' features through one linear layer (init_policy_head); the value
+        # head keeps algo.net_arch
+        kwargs["net_arch"] = {"pi": [], "vf": list(cfg.net_arch)}
     kwargs.update(dict(cfg.policy_kwargs))
     return kwargs
 
@@ -81,7 +106,17 @@ def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", ve
     noise = _action_noise(cfg, int(np.prod(env.action_space.shape)))
     if noise is not None:
         extra["action_noise"] = noise
-    return make(env=env, policy_kwargs=policy_kwargs(cfg), seed=seed, device=device, verbose=verbose, **extra)
+    candidates, n = None, None
+    if cfg.extractor.elevation_encoder == "cost_to_go" and isinstance(env.action_space, spaces.Discrete):
+        candidates, n = env.get_attr("mapping", [0])[0].candidates, int(env.action_space.n)
+    model = make(
+        env=env, policy_kwargs=policy_kwargs(cfg, n, candidates), seed=seed, device=device, verbose=verbose, **extra
+    )
+    if cfg.extractor.elevation_encoder == "cost_to_go":
+        extractor = model.policy.features_extractor
+        c = cfg.extractor.cost_to_go
+        init_policy_head(model.policy.action_net, extractor.offset("elevation_map"), n, c.beta, c.progress)
+    return model
 
 
 def load_model(cfg: AlgoConfig, path: Path, env: VecEnv | None, device: str = "cpu") -> BaseAlgorithm:

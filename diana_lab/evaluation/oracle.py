@@ -161,6 +161,7 @@ class AStarOracle:
         self.replans = 0
         self._next = 0
         self._sent: np.ndarray | None = None
+        self.known: CostMap | None = None  # the first map the last plan tried, as the oracle knew it
 
     def costmaps(self, env: gym.Env) -> tuple[CostMap, ...]:
         """The maps to try in order (cached per cost map: one env, one world, one robot)."""
@@ -205,7 +206,9 @@ class AStarOracle:
         base = env.unwrapped
         reach = self.spacing * base.mapping.extent
         self.waypoints = np.asarray(base.goal, dtype=np.float64)[None, :]  # if nothing else: head for the goal
-        for cm in self._known(env, self.costmaps(env)):
+        known = self._known(env, self.costmaps(env))
+        self.known = known[0]
+        for cm in known:
             if self.receding:
                 choices = None
                 if base.mapping.discrete:  # choose among the actions the policy has, not the nearest to a free point

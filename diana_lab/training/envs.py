@@ -74,9 +74,17 @@ def make_env(groups: dict[str, Any], render_mode: str | None = None, expert: Imi
     env = RoverNavEnv(config=groups, world_instance=shared_world(groups["world"]), render_mode=render_mode)
     if expert is None:
         return env
-    from diana_lab.training.imitation import ExpertLabels, make_expert
+    from diana_lab.training.imitation import ExpertLabels, cost_label_offsets, make_expert
 
-    return ExpertLabels(env, make_expert(expert))
+    offsets = None
+    if expert.cost_weight > 0:
+        if groups["sensor"].get("encoding") != "elevation_map":
+            raise C.ConfigError(
+                "train.imitation.cost_weight: cost labels need sensor.encoding=elevation_map, got "
+                f"{groups['sensor'].get('encoding')!r}"
+            )
+        offsets = cost_label_offsets(groups["sensor"]["elevation_map"])
+    return ExpertLabels(env, make_expert(expert), offsets)
 
 
 def check_env(groups: dict[str, Any], seed: int) -> None:

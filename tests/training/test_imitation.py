@@ -165,3 +165,95 @@ def test_runner_logs_the_imitation_stage(tmp_path):
 def test_bad_imitation_config_names_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         validate(compose([override]), ["train"])
+
+
+CTG = ["+experiment=reference_ctg", "algo.extractor.cost_to_go.iterations=20", "episode.max_steps=30"]
+
+
+def test_cost_labels_are_the_experts_map_in_the_observations_frame():
+    """``info["expert_cost"]``: per map cell, the least log cost over its quarter points of the map the expert
+    planned on, laid out like the elevation map (row 0 ahead, column 0 left), and the expert's fill (the
+    cheapest cost) beyond what it knows and beyond the world's edge."""
+    import math
+
+    env = make_env(env_config(compose(CTG)), expert=ImitationConfig(enabled=True, expert="astar_memory", cost_weight=1))
+    try:
+        obs, info = env.reset(seed=5, options={"yaw": 0.7})
+        label = info["expert_cost"].astype(np.float64)
+        assert label.shape == obs["elevation_map"].shape[1:] and info["expert_cost"].dtype == np.float16
+        state = env.unwrapped.dynamics.state
+        known = env.expert.known
+        yaw = state.rpy[2]
+        ahead, left = np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
+        cheapest = np.log(known.cost[np.isfinite(known.cost)].min())
+        inside = 0
+        for row in range(0, 60, 7):
+            for col in range(0, 60, 5):
+                x, y = 12.0 - (row + 0.5) * 0.4, 12.0 - (col + 0.5) * 0.4
+                pts = [state.position[:2] + (x + a) * ahead + (y + b) * left for a in (-0.1, 0.1) for b in (-0.1, 0.1)]
+                px, py = np.array(pts).T
+                on_map = known.inside(*known.world_to_cell(px, py))
+                expected = np.where(on_map, np.log(np.clip(known.cost_at(px, py), 1, 1e4)), cheapest).min()
+                assert label[row, col] == pytest.approx(expected, abs=3e-3), (row, col)
+                inside += on_map.all()
+        assert 20 <= inside < 108  # the rover starts near enough the edge that both kinds are checked
+        assert label[0, 0] == pytest.approx(cheapest, abs=2e-3)  # 16.7 m away: beyond the 12 m it knows
+        assert label.max() > 2 * label[29, 29]  # and the Mars yard is not all cheap ground
+    finally:
+        env.close()
+
+
+def _expert_states(groups: dict, expert: ImitationConfig, seed: int, n: int) -> tuple[torch.Tensor, np.ndarray]:
+    """``n`` elevation maps the expert drove through, and its cost labels for them."""
+    env = make_env(groups, expert=expert)
+    obs, info = env.reset(seed=seed)
+    maps, labels = [], []
+    for _ in range(n):
+        maps.append(obs["elevation_map"])
+        labels.append(info["expert_cost"])
+        obs, _, terminated, truncated, info = env.step(info["expert_action"])
+        if terminated or truncated:
+            obs, info = env.reset()
+    env.close()
+    return torch.as_tensor(np.stack(maps)), np.stack(labels).astype(np.float32)
+
+
+def test_the_cost_map_labels_teach_the_cost_to_go_network():
+    """After DAgger with ``cost_weight``, the cost CNN is closer to the expert's log costs on states of
+    other episodes than it started."""
+    from diana_lab.training.imitation import _cost_loss
+
+    groups = env_config(compose(CTG))
+    expert = ImitationConfig(enabled=True, expert="astar_memory", cost_weight=10.0)
+    venv = DummyVecEnv([lambda: make_env(groups, expert=expert) for _ in range(2)])
+    venv.seed(0)
+    model = build_model(validate(compose(CTG), ["algo"])["algo"], venv, seed=0)
+    net = model.policy.features_extractor.encoders["elevation_map"]
+    maps, labels = _expert_states(groups, expert, seed=99, n=48)
+    with torch.no_grad():
+        before = float(_cost_loss(net, maps, labels))
+    cfg = ImitationConfig(
+        enabled=True,
+        expert="astar_memory",
+        cost_weight=10.0,
+        steps_per_iteration=128,
+        epochs=24,
+        iterations=1,
+        batch_size=32,
+    )
+    result = imitate(model, venv, cfg, seed=0, tracker=Tracker())
+    venv.close()
+    with torch.no_grad():
+        after = float(_cost_loss(net, maps, labels))
+    assert np.isfinite(result.history[0]["cost_loss"])
+    assert after < 0.8 * before, (before, after)
+
+
+def test_cost_labels_need_the_cost_to_go_encoder():
+    groups = env_config(compose(["+experiment=reference", "episode.max_steps=30"]))
+    venv = DummyVecEnv([lambda: make_env(groups, expert=ImitationConfig(enabled=True, cost_weight=1.0))])
+    model = build_model(validate(compose(["+experiment=reference"]), ["algo"])["algo"], venv, seed=0)
+    cfg = ImitationConfig(enabled=True, cost_weight=1.0, steps_per_iteration=8, iterations=1)
+    with pytest.raises(ConfigError, match="elevation_encoder=cost_to_go"):
+        imitate(model, venv, cfg, seed=0, tracker=Tracker())
+    venv.close()
