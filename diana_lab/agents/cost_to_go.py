@@ -180,7 +180,10 @@ class CostToGoNet(nn.Module):
         return value
 
     def forward(self, elevation: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
-        cost = torch.exp(self.log_cost(elevation))
+        return self.features(torch.exp(self.log_cost(elevation)), goal)
+
+    def features(self, cost: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """The candidates' features given a cost map ``(B, h, w)`` (the CNN's, or any other)."""
         value = self.cost_to_go(cost, goal)
         end = torch.clamp(value.flatten(1) @ self.end_weights, max=UNREACHED)
         segment = cost.flatten(1) @ self.segment_weights

@@ -5,6 +5,9 @@ Accepted values:
 * ``straight`` / ``astar`` / ``astar_receding`` / ``astar_local`` / ``astar_cone`` (``_memory``) / ``astar_memory``
   (12 m, the reference policy's imitation expert) -- the classical
   baselines (:mod:`diana_lab.evaluation.oracle`);
+* ``cost_to_go_bound`` -- the ``cost_to_go`` network's planner fed the ``astar_memory`` expert's cost map,
+  the bound of that architecture (:mod:`diana_lab.evaluation.cost_to_go_bound`; needs the run's
+  ``+experiment=reference_ctg`` settings);
 * a path to a Stable-Baselines3 ``.zip`` (or a folder holding ``model.zip``); a ``vecnormalize.pkl`` beside
   it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
 * an MLflow run id (32 hex digits) of a training run, whose artefacts ``model/model.zip``,
@@ -211,6 +214,13 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     spec = str(spec).strip()
     if spec in BASELINES:
         return LoadedPolicy(BASELINES[spec](), spec)
+    if spec == "cost_to_go_bound":  # reads the run's network settings, unlike the other baselines
+        from diana_lab.evaluation.cost_to_go_bound import CostToGoBound
+
+        try:
+            return LoadedPolicy(CostToGoBound.from_config(cfg), spec)
+        except ConfigError as exc:
+            raise UserError(str(exc)) from exc
     if spec == "pretrained":
         model_zip = PRETRAINED_DIR / "model.zip"
         if not model_zip.is_file():
@@ -229,8 +239,8 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_run(spec, cfg, eval_cfg)
     raise UserError(
         f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected a baseline "
-        f"({', '.join(BASELINES)}), 'pretrained', the path of a Stable-Baselines3 .zip (with vecnormalize.pkl "
-        "beside it if the run normalised observations) or an MLflow run id (32 hex digits)."
+        f"({', '.join(BASELINES)}, cost_to_go_bound), 'pretrained', the path of a Stable-Baselines3 .zip (with "
+        "vecnormalize.pkl beside it if the run normalised observations) or an MLflow run id (32 hex digits)."
     )
 
 

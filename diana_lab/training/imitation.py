@@ -42,7 +42,14 @@ from diana_lab.config.validation import ConfigError
 from diana_lab.tracking.mlflow_run import Tracker
 from diana_lab.training.signals import raise_pending
 
-__all__ = ["ExpertLabels", "ImitationResult", "imitate", "make_expert"]
+__all__ = [
+    "ExpertLabels",
+    "ImitationResult",
+    "cost_label_offsets",
+    "expert_cost_label",
+    "imitate",
+    "make_expert",
+]
 
 LABEL_KEY = "expert_action"
 COST_KEY = "expert_cost"
@@ -73,27 +80,45 @@ def cost_label_offsets(map_cfg: dict[str, Any]) -> np.ndarray:
     return (centres + quarter).reshape(-1, 2)
 
 
+MAX_COST = 1.0e4  # the cost an expert's label gives a banned cell (``inf``)
+
+
+def expert_cost_label(expert: Any, env: gym.Env, offsets: np.ndarray, shape: tuple) -> np.ndarray:
+    """The log of the cost the expert last planned on (``expert.known``; ``inf`` read as :data:`MAX_COST`),
+    the least over each map cell's quarter points ``offsets`` (:func:`cost_label_offsets`), ``shape``
+    ``(rows, cols)`` float16 in the observation's map frame round the rover's current pose.
+
+    Why the least: the expert's map (0.2 m on the Mars yard) is speckled with banned cells it threads between;
+    a coarser planner fed the cells' mean or worst cost gets stuck where the expert drives on (measured with
+    the expert's own costs in the cost_to_go network, 30 Mars-yard episodes: 80 % success with the least,
+    53 % with the mean of logs, 57 % with the median, 37 % with the worst). Beyond the world's edge the map
+    holds no terrain for the sensor to see: there the label is the expert's fill for ground it does not know
+    (the cheapest cost), all a policy could learn.
+    """
+    state = env.unwrapped.dynamics.state
+    c, s = math.cos(state.rpy[2]), math.sin(state.rpy[2])
+    dx, dy = offsets[:, 0], offsets[:, 1]
+    known = expert.known
+    x, y = state.position[0] + c * dx - s * dy, state.position[1] + s * dx + c * dy
+    cheapest = float(np.min(known.cost[np.isfinite(known.cost)], initial=1.0))
+    cost = np.where(known.inside(*known.world_to_cell(x, y)), known.cost_at(x, y), cheapest)
+    log_cost = np.log(np.clip(cost, 1.0, MAX_COST)).reshape(-1, 4).min(1)
+    return log_cost.reshape(shape).astype(np.float16)
+
+
 class ExpertLabels(gym.Wrapper):
     """Adds the expert's action for the observation just returned as ``info["expert_action"]``.
 
     Labelling costs about a millisecond per step (the expert's path query), so :meth:`set_labelling` turns
     it off for the RL stage that follows imitation. Given ``cost_offsets`` (:func:`cost_label_offsets`), it
-    also adds ``info["expert_cost"]``: the log of the cost the expert planned on (``inf`` read as
-    ``MAX_COST``), the least over each map cell's quarter points, ``(rows, cols)`` float16 in the
-    observation's map frame. Why the least: the expert's map (0.2 m on the Mars yard) is speckled with
-    banned cells it threads between; a coarser planner fed the cells' mean or worst cost gets stuck where the
-    expert drives on (measured with the expert's own costs in the network, 30 Mars-yard episodes: 80 %
-    success with the least, 53 % with the mean of logs, 57 % with the median, 37 % with the worst).
+    also adds ``info["expert_cost"]`` (:func:`expert_cost_label`).
     """
-
-    MAX_COST = 1.0e4
 
     def __init__(self, env: gym.Env, expert: Any, cost_offsets: np.ndarray | None = None) -> None:
         super().__init__(env)
         self.expert = expert
         self.labelling = True
         self.cost_offsets = cost_offsets
-        self._fill: tuple[Any, float] | None = None
         if cost_offsets is not None:
             space = env.observation_space["elevation_map"] if "elevation_map" in env.observation_space.spaces else None
             if space is None or space.shape[1] * space.shape[2] * 4 != len(cost_offsets):
@@ -111,21 +136,7 @@ class ExpertLabels(gym.Wrapper):
         return np.asarray(self.expert.act(obs, self.env), dtype=_label_dtype(self.action_space))
 
     def _cost_label(self) -> np.ndarray:
-        state = self.env.unwrapped.dynamics.state
-        c, s = math.cos(state.rpy[2]), math.sin(state.rpy[2])
-        dx, dy = self.cost_offsets[:, 0], self.cost_offsets[:, 1]
-        known = self.expert.known
-        x, y = state.position[0] + c * dx - s * dy, state.position[1] + s * dx + c * dy
-        # beyond the world's edge the map holds no terrain for the sensor to see: the expert's fill for ground it
-        # does not know (the cheapest) is all a policy could learn there
-        cost = np.where(known.inside(*known.world_to_cell(x, y)), known.cost_at(x, y), self._cheapest(known))
-        log_cost = np.log(np.clip(cost, 1.0, self.MAX_COST)).reshape(-1, 4).min(1)
-        return log_cost.reshape(self._cost_shape).astype(np.float16)
-
-    def _cheapest(self, known: Any) -> float:
-        if self._fill is None or self._fill[0] is not known:
-            self._fill = (known, float(np.min(known.cost[np.isfinite(known.cost)], initial=1.0)))
-        return self._fill[1]
+        return expert_cost_label(self.expert, self.env, self.cost_offsets, self._cost_shape)
 
     def _add_labels(self, obs: Any, info: dict) -> None:
         info[LABEL_KEY] = self._label(obs)
