@@ -80,6 +80,8 @@ def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     if enabled and uri:
         writable_store(uri)
     loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
+    if loaded.note:
+        print(f"{loaded.label}: {loaded.note}")
     env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg))
     try:
         if loaded.model is not None:

@@ -87,6 +87,7 @@ class LoadedPolicy:
     run_id: str | None = None  # the MLflow training run, when the policy came from one
     train_cfg: DictConfig | None = None  # the training's resolved config, when known
     model: Any = None  # the SB3 model, when there is one
+    note: str | None = None  # what a user should know about it (the shipped policy's card summary)
 
 
 def _train_config(path: Path | None) -> DictConfig | None:
@@ -225,11 +226,17 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         model_zip = PRETRAINED_DIR / "model.zip"
         if not model_zip.is_file():
             raise UserError(
-                f"policy=pretrained: the reference policy is not shipped yet (expected '{model_zip}'). "
-                f"Use a baseline ({', '.join(BASELINES)}), a model file (policy=path/to/model.zip) or the "
+                f"policy=pretrained: the reference policy's weights are missing: not shipped with this install "
+                f"(expected '{model_zip}'; reinstall the package with its data). Use a baseline "
+                f"({', '.join(BASELINES)}), a model file (policy=path/to/model.zip) or the "
                 "MLflow run id of a training run."
             )
-        return _from_dir(PRETRAINED_DIR, model_zip, eval_cfg, "pretrained")
+        loaded = _from_dir(PRETRAINED_DIR, model_zip, eval_cfg, "pretrained")
+        loaded.policy.name = "pretrained"  # what the plots' titles and the tables call it
+        card = PRETRAINED_DIR / "card.json"
+        if card.is_file():
+            loaded.note = json.loads(card.read_text()).get("summary")
+        return loaded
     path = Path(spec).expanduser()
     if path.is_dir():
         path = path / "model.zip" if (path / "model.zip").is_file() else path / MODEL_ARTIFACT

@@ -75,9 +75,3 @@ def test_a_missing_model_file_exits_2_naming_the_path(tmp_path):
     assert proc.returncode == 2
     assert "no/such/model.zip" in proc.stderr and "Traceback" not in proc.stderr
     assert proc.stderr.startswith("error: ")
-
-
-def test_pretrained_says_it_is_not_shipped_yet(tmp_path):
-    proc = evaluate_cli(tmp_path / "run", "policy=pretrained", *TINY)
-    assert proc.returncode == 2
-    assert "not shipped yet" in proc.stderr

@@ -64,3 +64,14 @@ def test_a_saved_sb3_model_loads_runs_and_is_refused_on_other_observations(tmp_p
             check_observation_space(loaded.model.observation_space, other.observation_space, loaded.label)
     finally:
         other.close()
+
+
+def test_pretrained_without_its_files_says_what_is_missing(tmp_path, monkeypatch):
+    """An install without the package data (e.g. a source tree copied without ``assets/``) names the file."""
+    import diana_lab.evaluation.loading as loading
+    from diana_lab.cli import UserError
+
+    monkeypatch.setattr(loading, "PRETRAINED_DIR", tmp_path)
+    with pytest.raises(UserError, match="not shipped") as err:
+        load_policy("pretrained", compose([]), type("E", (), {"deterministic": True, "seed": 0})())
+    assert str(tmp_path / "model.zip") in str(err.value)

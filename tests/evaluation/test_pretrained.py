@@ -1,0 +1,126 @@
+"""The shipped reference policy (``policy=pretrained``): its files, its recipe, its card, its results.
+
+The fast tests check what could silently drift: the weights load and fit the env of the preset they were
+trained with, the shipped training config is exactly what ``+experiment=reference`` composes today, and the
+card's figures are well-formed. The slow ones re-run what the card claims: the 20-episode suite, and the
+ONNX export's parity with torch on 1,000 recorded Mars-yard observations (issue 10).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from omegaconf import OmegaConf
+
+from diana_lab.config import compose, to_object
+from diana_lab.envs.rover_nav import RoverNavEnv
+from diana_lab.evaluate import env_config
+from diana_lab.evaluation.loading import PRETRAINED_DIR, check_observation_space, load_policy
+
+from .test_cli import evaluate_cli
+
+CARD = PRETRAINED_DIR / "card.json"
+RATES = ("success_rate", "spl", "collision_rate", "tipover_rate", "stuck_rate", "timeout_rate")
+
+
+def card() -> dict:
+    return json.loads(CARD.read_text())
+
+
+def reference_cfg(*overrides: str):
+    return compose(["+experiment=reference", "tracking.enabled=false", *overrides])
+
+
+def test_the_shipped_files_are_there_and_small():
+    for name in ("model.zip", "config.yaml", "card.json"):
+        assert (PRETRAINED_DIR / name).is_file(), name
+    assert (PRETRAINED_DIR / "model.zip").stat().st_size < 5e6  # "weights (small)"
+
+
+def test_the_shipped_config_is_what_the_preset_composes_today():
+    """Every key the policy was trained with has the value ``+experiment=reference`` gives it now (keys added
+    to the code since then may only be new), so the preset reproduces the recipe and the evaluation builds
+    the env the policy was trained in."""
+    shipped = OmegaConf.load(PRETRAINED_DIR / "config.yaml")
+    now = compose(["+experiment=reference"])
+    assert OmegaConf.merge(now, shipped) == now
+    assert card()["recipe"]["command"] == "python -m diana_lab +experiment=reference"
+
+
+def test_it_loads_and_fits_the_preset_env():
+    cfg = reference_cfg()
+    loaded = load_policy("pretrained", cfg, to_object("eval", cfg.eval))
+    env = RoverNavEnv(config=env_config(cfg, None, loaded.train_cfg))
+    try:
+        check_observation_space(loaded.model.observation_space, env.observation_space, "pretrained")
+        obs, _ = env.reset(seed=0)
+        loaded.policy.reset(env)
+        action = loaded.policy.act(obs, env)
+        assert env.action_space.contains(action)
+    finally:
+        env.close()
+
+
+def test_without_the_preset_the_cli_says_which_preset_to_add(tmp_path):
+    proc = evaluate_cli(tmp_path / "run", "policy=pretrained", "eval.episodes=1", "tracking.enabled=false")
+    assert proc.returncode == 2
+    assert "+experiment=reference" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_the_card_holds_every_suite_with_every_rate():
+    c = card()
+    for key in ("mars_yard", "mars_yard_physics", "mars_yard_noise", "craters_unseen", "mars_yard_20"):
+        result = c["results"][key]
+        assert result["command"].startswith("python -m diana_lab.evaluate policy=pretrained +experiment=reference")
+        for rate in RATES:
+            assert 0.0 <= result[rate] <= 1.0, (key, rate)
+    assert c["training"]["wall_time_min"] > 0 and c["training"]["timesteps"] > 0
+
+
+@pytest.mark.slow
+def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
+    """Deterministic policy, fixed suite: the figures come back (within one episode, for other CPUs' float
+    rounding). The issue's bar for this suite is 90 % success; the card's ``status`` says where it stands."""
+    want = card()["results"]["mars_yard_20"]
+    out = tmp_path / "summary.json"
+    proc = evaluate_cli(
+        tmp_path / "run",
+        "policy=pretrained",
+        "+experiment=reference",
+        "eval.episodes=20",
+        "eval.video=false",
+        "tracking.enabled=false",
+        f"output={out}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(out.read_text())
+    print({k: got[k] for k in RATES})
+    assert got["episodes"] == 20
+    assert abs(got["success_rate"] - want["success_rate"]) <= 0.05 + 1e-9
+    assert abs(got["spl"] - want["spl"]) <= 0.05
+
+
+@pytest.mark.slow
+def test_the_exported_policy_drives_like_torch_on_1000_mars_yard_observations(tmp_path):
+    from diana_lab.deploy import Navigator
+    from diana_lab.export import main
+    from tests.deploy.helpers import EVAL, record
+    from tests.deploy.test_parity import TOLERANCE_M, replay
+
+    onnx = tmp_path / "policy.onnx"
+    main.task(compose(["+experiment=reference", "policy=pretrained", f"output={onnx}"], config_name="export"))
+    cfg = reference_cfg()
+    loaded = load_policy("pretrained", cfg, EVAL)
+    env = RoverNavEnv(config=env_config(cfg, None, loaded.train_cfg))
+    try:
+        rec = record(env, loaded.policy, 1000, seed=7)
+    finally:
+        env.close()
+    err = replay(Navigator.from_files(onnx), rec)
+    print(f"shipped policy parity over 1000 observations: {err}")
+    assert err["waypoint"] <= TOLERANCE_M
+    # not degenerate: the recording spans many episodes and the policy picks many candidates
+    assert sum(rec.starts) >= 10
+    assert len(np.unique(np.round(np.asarray(rec.waypoints) - np.asarray(rec.poses)[:, :2], 3), axis=0)) > 50
