@@ -179,13 +179,13 @@ class AStarOracle:
                 )
         return self._maps[key]
 
-    def _known(self, env: gym.Env, maps: tuple[CostMap, ...]) -> tuple[CostMap, ...]:
-        """``maps`` as far as the rover knows them (see ``knowledge_radius``): unknown cells cost the least."""
+    def knowledge(self, env: gym.Env, grid: CostMap) -> np.ndarray | None:
+        """Which cells of ``grid`` the oracle knows now (``None``: all; see ``knowledge_radius``)."""
         if self.knowledge_radius is None:
-            return maps
+            return None
         est = env.unwrapped.pose_estimate
-        ny, nx = maps[0].shape
-        cx, cy = maps[0].cell_to_world(np.arange(nx), np.arange(ny))
+        ny, nx = grid.shape
+        cx, cy = grid.cell_to_world(np.arange(nx), np.arange(ny))
         dx, dy = cx[None, :] - est.xy[0], cy[:, None] - est.xy[1]
         dist = np.hypot(dx, dy)
         known = dist <= self.knowledge_radius
@@ -195,6 +195,13 @@ class AStarOracle:
         if self.knowledge_memory:  # a map built over the episode: everything seen so far stays known
             self._seen = known if self._seen is None or self._seen.shape != known.shape else self._seen | known
             known = self._seen
+        return known
+
+    def _known(self, env: gym.Env, maps: tuple[CostMap, ...]) -> tuple[CostMap, ...]:
+        """``maps`` as far as the rover knows them (:meth:`knowledge`): unknown cells cost the least."""
+        known = self.knowledge(env, maps[0])
+        if known is None:
+            return maps
         out = []
         for cm in maps:
             cheapest = float(np.min(cm.cost[np.isfinite(cm.cost)], initial=1.0))
