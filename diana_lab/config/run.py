@@ -355,7 +355,7 @@ def check_action_space(algo: AlgoConfig, shape: str) -> None:
 # ----------------------------------------------------------------------------------------------- train
 
 
-EXPERTS = ("astar", "astar_memory")
+EXPERTS = ("astar", "astar_memory", "astar_seen")
 
 
 @dataclass
@@ -372,7 +372,9 @@ class ImitationConfig:
     enabled: bool = False
     # "astar": the receding-horizon A* oracle with the whole cost map (privileged); "astar_memory": the same
     # oracle knowing only what lay within ``knowledge_radius`` of the rover so far in the episode (unknown
-    # ground is taken as the cheapest), so its choices depend only on what a mapping policy could know
+    # ground is taken as the cheapest), so its choices depend only on what a mapping policy could know;
+    # "astar_seen": "astar_memory" knowing only the cells the policy's own map has data for (needs
+    # sensor.encoding=elevation_map with memory), so its choices depend only on where that map has data
     expert: str = "astar"
     knowledge_radius: float = 12.0  # m, for "astar_memory"
     iterations: int = 6

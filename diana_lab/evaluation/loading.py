@@ -7,6 +7,8 @@ Accepted values:
   baselines (:mod:`diana_lab.evaluation.oracle`);
 * ``astar_perceived`` -- ``astar_memory``'s planner on the cost maps of what the rover's own sensor mapped
   (:mod:`diana_lab.evaluation.perceived`; needs ``sensor.elevation_map.memory``, e.g. ``+experiment=reference``);
+* ``astar_seen`` -- ``astar_memory`` on the true cost maps, knowing only the cells that sensor map has hit (same
+  module and needs);
 * ``cost_to_go_bound`` -- the ``cost_to_go`` network's planner fed the ``astar_memory`` expert's cost map,
   the bound of that architecture (:mod:`diana_lab.evaluation.cost_to_go_bound`; needs the run's
   ``+experiment=reference_ctg`` settings);
@@ -224,14 +226,14 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
             return LoadedPolicy(CostToGoBound.from_config(cfg), spec)
         except ConfigError as exc:
             raise UserError(str(exc)) from exc
-    if spec == "astar_perceived":  # plans on the env's own sensor map: refuse a config that keeps none
-        from diana_lab.evaluation.perceived import PerceivedMapOracle, check_perceivable
+    if spec in ("astar_perceived", "astar_seen"):  # read the env's own sensor map: refuse a config that keeps none
+        from diana_lab.evaluation.perceived import PerceivedMapOracle, SeenMapOracle, check_perceivable
 
         try:
-            check_perceivable(cfg)
+            check_perceivable(cfg, f"policy={spec}")
         except ConfigError as exc:
             raise UserError(str(exc)) from exc
-        return LoadedPolicy(PerceivedMapOracle(), spec)
+        return LoadedPolicy(PerceivedMapOracle() if spec == "astar_perceived" else SeenMapOracle(), spec)
     if spec == "pretrained":
         model_zip = PRETRAINED_DIR / "model.zip"
         if not model_zip.is_file():
@@ -256,7 +258,7 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_run(spec, cfg, eval_cfg)
     raise UserError(
         f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected a baseline "
-        f"({', '.join(BASELINES)}, astar_perceived, cost_to_go_bound), 'pretrained', the path of a "
+        f"({', '.join(BASELINES)}, astar_perceived, astar_seen, cost_to_go_bound), 'pretrained', the path of a "
         "Stable-Baselines3 .zip (with vecnormalize.pkl beside it if the run normalised observations) or an MLflow "
         "run id (32 hex digits)."
     )

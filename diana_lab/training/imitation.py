@@ -64,7 +64,13 @@ def make_expert(cfg: ImitationConfig) -> Any:
         return AStarOracle(receding=True, spacing=0.8)
     if cfg.expert == "astar_memory":
         return AStarOracle(spacing=0.8, knowledge_radius=cfg.knowledge_radius, knowledge_memory=True)
-    raise ValueError(f"train.imitation.expert: unknown expert {cfg.expert!r}; expected one of 'astar', 'astar_memory'")
+    if cfg.expert == "astar_seen":
+        from diana_lab.evaluation.perceived import SeenMapOracle
+
+        return SeenMapOracle(knowledge_radius=cfg.knowledge_radius)
+    raise ValueError(
+        f"train.imitation.expert: unknown expert {cfg.expert!r}; expected one of 'astar', 'astar_memory', 'astar_seen'"
+    )
 
 
 def cost_label_offsets(map_cfg: dict[str, Any]) -> np.ndarray:

@@ -305,6 +305,11 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
         raise UserError(
             f"train.resume: {resume.source} was trained with algo={resume.algo}; pass algo={resume.algo} to continue it"
         )
+    imitation = train_cfg.imitation
+    if imitation.enabled and imitation.expert == "astar_seen":  # the expert reads the policy's own sensor map
+        from diana_lab.evaluation.perceived import check_perceivable
+
+        check_perceivable(cfg, "train.imitation.expert=astar_seen")
     check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
     tracker, run, status, summary = Tracker(), None, "FAILED", {}
     with interrupts_as_exceptions():
