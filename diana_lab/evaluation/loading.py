@@ -3,12 +3,12 @@
 Accepted values:
 
 * ``straight`` / ``astar`` / ``astar_receding`` / ``astar_local`` / ``astar_cone`` (``_memory``) / ``astar_memory``
-  (12 m, the reference policy's imitation expert) -- the classical
+  (12 m, the imitation expert of the reference policy's v0.1) -- the classical
   baselines (:mod:`diana_lab.evaluation.oracle`);
 * ``astar_perceived`` -- ``astar_memory``'s planner on the cost maps of what the rover's own sensor mapped
   (:mod:`diana_lab.evaluation.perceived`; needs ``sensor.elevation_map.memory``, e.g. ``+experiment=reference``);
 * ``astar_seen`` -- ``astar_memory`` on the true cost maps, knowing only the cells that sensor map has hit (same
-  module and needs);
+  module and needs; the reference policy's imitation expert);
 * ``cost_to_go_bound`` -- the ``cost_to_go`` network's planner fed the ``astar_memory`` expert's cost map,
   the bound of that architecture (:mod:`diana_lab.evaluation.cost_to_go_bound`; needs the run's
   ``+experiment=reference_ctg`` settings);
@@ -209,7 +209,7 @@ BASELINES: dict[str, Callable[[], Policy]] = {
     "astar_cone_memory": lambda: AStarOracle(
         spacing=0.8, knowledge_radius=8.0, knowledge_fov_deg=100.0, knowledge_memory=True
     ),
-    # the reference policy's imitation expert (train.imitation.expert=astar_memory, knowledge_radius 12 m)
+    # the imitation expert of the reference policy's v0.1 (train.imitation.expert=astar_memory, knowledge_radius 12 m)
     "astar_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=12.0, knowledge_memory=True),
 }
 

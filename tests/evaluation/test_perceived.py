@@ -1,4 +1,4 @@
-"""``policy=astar_perceived``: the planner knows only what the rover's own sensor mapped."""
+"""``policy=astar_perceived`` / ``astar_seen``: the planners know only what the rover's own sensor mapped."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from diana_lab.config import compose
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.evaluation import AStarOracle, EpisodeSpec, StraightLine, run_episodes
-from diana_lab.evaluation.perceived import PerceivedMapOracle, perceived_heights
+from diana_lab.evaluation.perceived import PerceivedMapOracle, SeenMapOracle, perceived_heights, sensor_hit
 from diana_lab.height_memory import HeightMemory
 from diana_lab.sim.terrain import Terrain
 from diana_lab.sim.world import World
@@ -84,10 +84,38 @@ def test_perceived_heights_interpolate_seen_cells_and_leave_the_rest_unknown():
     assert not perceived_heights(empty, px, py)[1].any()
 
 
-def test_it_refuses_a_sensor_that_keeps_no_map():
+@pytest.mark.parametrize("spec", ["astar_perceived", "astar_seen"])
+def test_it_refuses_a_sensor_that_keeps_no_map(spec):
     from diana_lab.cli import UserError
     from diana_lab.evaluation.loading import load_policy
 
-    with pytest.raises(UserError, match=r"sensor\.elevation_map\.memory=true"):
-        load_policy("astar_perceived", compose([]), None)
-    assert load_policy("astar_perceived", compose(["+experiment=reference"]), None).label == "astar_perceived"
+    with pytest.raises(UserError, match=rf"policy={spec}.*sensor\.elevation_map\.memory=true"):
+        load_policy(spec, compose([]), None)
+    assert load_policy(spec, compose(["+experiment=reference"]), None).label == spec
+
+
+def test_astar_seen_knows_the_true_cost_of_the_cells_the_lidar_hit_and_nothing_else(ridge_env):
+    oracle = SeenMapOracle()
+    ridge_env.reset(seed=0, options=EPISODE.reset_options())
+    oracle.reset(ridge_env)
+    grid = ridge_env.sampler.costmap
+    hit = sensor_hit(ridge_env.sensor.encoder.memory, grid)
+    truth = AStarOracle().costmaps(ridge_env)[0].cost
+    known = oracle.knowledge(ridge_env, grid)
+    assert known.any() and not (known & ~hit).any()  # nothing the sensor did not hit...
+    far = np.hypot(*np.meshgrid(*grid.cell_to_world(np.arange(grid.shape[1]), np.arange(grid.shape[0])))) > 16.0
+    assert not (known & far).any()  # ...nor beyond the 12 m horizon (the rover starts 4 m from the centre)
+    np.testing.assert_array_equal(oracle.known.cost[known], truth[known])  # the truth where it knows
+    assert np.all(oracle.known.cost[~known] == np.min(truth[np.isfinite(truth)]))  # the cheapest elsewhere
+    # the near face of the ridge is banned (seen), the far face is not (in its shadow), unlike the truth
+    gx, gy = np.meshgrid(*grid.cell_to_world(np.arange(grid.shape[1]), np.arange(grid.shape[0])))
+    face, back = (np.abs(gx + 0.6) < 0.3) & (np.abs(gy) < 3.0), (np.abs(gx - 0.6) < 0.3) & (np.abs(gy) < 3.0)
+    banned_face, banned_back = face & np.isinf(truth), back & np.isinf(truth)
+    assert banned_face.sum() > 10 and np.isinf(oracle.known.cost[banned_face]).mean() > 0.9
+    assert banned_back.sum() > 10 and np.isinf(oracle.known.cost[banned_back]).mean() < 0.5
+
+
+def test_astar_seen_drives_round_the_ridge(ridge_env):
+    df, traces = run_episodes(SeenMapOracle(), ridge_env, [EPISODE])
+    assert df.loc[0, "outcome"] == "success", df.iloc[0].to_dict()
+    assert np.abs(traces[0].xy[:, 1]).max() > 5.0

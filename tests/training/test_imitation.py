@@ -12,7 +12,7 @@ from diana_lab.config import ConfigError, compose, validate
 from diana_lab.config.run import ImitationConfig
 from diana_lab.tracking import Tracker
 from diana_lab.training.envs import env_config, make_env
-from diana_lab.training.imitation import LABEL_KEY, ExpertLabels, imitate
+from diana_lab.training.imitation import LABEL_KEY, ExpertLabels, imitate, make_expert
 
 from .helpers import ALGO_TINY, TINY, run_in_process, runs, store_args
 
@@ -247,6 +247,14 @@ def test_the_cost_map_labels_teach_the_cost_to_go_network():
         after = float(_cost_loss(net, maps, labels))
     assert np.isfinite(result.history[0]["cost_loss"])
     assert after < 0.8 * before, (before, after)
+
+
+def test_the_astar_seen_expert_needs_the_policys_map_before_any_run_starts(tmp_path):
+    args = ["+experiment=reference", "train.imitation.expert=astar_seen", "sensor.elevation_map.memory=false"]
+    assert run_in_process(args + store_args(tmp_path)) == 2
+    assert runs(tmp_path)[1] == []  # refused before an MLflow run was opened
+    labels = ImitationConfig(enabled=True, expert="astar_seen")
+    assert make_expert(labels).name == "astar_seen"
 
 
 def test_cost_labels_need_the_cost_to_go_encoder():
