@@ -414,6 +414,10 @@ class TrainConfig:
 
     total_timesteps: int = 200_000  # the target step count (a resumed run trains up to it)
     n_envs: int = 4
+    # more worlds to train in besides ``world``: conf/world options, each optionally with overrides of its own
+    # ("craters world.seed=7"); env i of the n_envs drives in [world, *worlds][i % (1 + len(worlds))], so one
+    # policy meets every terrain in every rollout. Evaluation stays on ``world``.
+    worlds: list[str] = field(default_factory=list)
     vec_env: str = "dummy"  # dummy (one process) | subproc (one process per env)
     checkpoint_every: int = 20_000  # env steps between checkpoints; 0: only at the end and on interrupt
     resume: str | None = None  # an MLflow run id, a Hydra run dir or a checkpoint .zip
@@ -429,6 +433,18 @@ class TrainConfig:
     def __post_init__(self) -> None:
         _positive_int("train.total_timesteps", self.total_timesteps)
         _positive_int("train.n_envs", self.n_envs)
+        for i, entry in enumerate(self.worlds):
+            name, *overrides = str(entry).split() or [""]
+            if not name or any(not o.startswith("world.") or "=" not in o for o in overrides):
+                raise ConfigError(
+                    f"train.worlds[{i}]: expected a conf/world option, optionally followed by world.<key>=<value> "
+                    f"overrides (e.g. 'craters world.seed=7'), got {entry!r}"
+                )
+        if self.n_envs < 1 + len(self.worlds):
+            raise ConfigError(
+                f"train.worlds: {1 + len(self.worlds)} worlds (world and {len(self.worlds)} more) need "
+                f"train.n_envs >= {1 + len(self.worlds)}, got {self.n_envs}: a world without an env is never trained in"
+            )
         one_of("train.vec_env", self.vec_env, VEC_ENVS)
         _non_negative_int("train.checkpoint_every", self.checkpoint_every)
         _positive_int("train.log_interval", self.log_interval)

@@ -14,8 +14,9 @@ import signal
 from typing import Any
 
 import gymnasium as gym
+from hydra.errors import HydraException
 from omegaconf import DictConfig, OmegaConf
-from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from diana_lab import config as C
@@ -31,6 +32,7 @@ __all__ = [
     "make_env",
     "make_training_env",
     "shared_world",
+    "training_worlds",
     "wrap_normalize",
 ]
 
@@ -50,6 +52,28 @@ def eval_env_config(cfg: DictConfig, eval_cfg: EvalConfig) -> dict[str, Any]:
         node = C.compose([], config_name=f"dynamics/{eval_cfg.dynamics}").dynamics
         groups["dynamics"] = OmegaConf.to_container(node, resolve=True)
     return groups
+
+
+def training_worlds(cfg: DictConfig, train: TrainConfig) -> list[dict[str, Any]]:
+    """The world groups the training envs cycle through: ``world``, then each of ``train.worlds`` composed from
+    ``conf/world/<name>.yaml`` with its overrides and validated against its schema (errors name the entry)."""
+    worlds = [env_config(cfg)["world"]]
+    for i, entry in enumerate(train.worlds):
+        name, *overrides = str(entry).split()
+        if not (C.CONF_DIR / "world" / f"{name}.yaml").is_file():
+            options = sorted(p.stem for p in (C.CONF_DIR / "world").glob("*.yaml"))
+            raise C.ConfigError(f"train.worlds[{i}]: no world option {name!r}; expected one of {', '.join(options)}")
+        try:
+            node = C.compose(overrides, config_name=f"world/{name}").world
+        except HydraException as exc:
+            raise C.ConfigError(f"train.worlds[{i}] ({entry!r}): {str(exc).splitlines()[0]}") from exc
+        world = OmegaConf.to_container(node, resolve=True)
+        try:
+            C.to_object("world", world)  # the schema's checks, now
+        except C.ConfigError as exc:
+            raise C.ConfigError(f"train.worlds[{i}] ({entry!r}): {exc}") from exc
+        worlds.append(world)
+    return worlds
 
 
 def shared_world(world_cfg: dict[str, Any]) -> World:
@@ -105,15 +129,26 @@ def check_env(groups: dict[str, Any], seed: int) -> None:
 def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: ImitationConfig | None = None) -> VecEnv:
     """``train.n_envs`` Monitor-wrapped envs; env ``i`` is seeded ``seed + i`` at its first reset.
 
-    ``expert``: label every step for imitation (see :func:`make_env`)."""
+    ``expert``: label every step for imitation (see :func:`make_env`). With ``train.worlds``, env ``i`` drives in
+    world ``i % (1 + len(train.worlds))`` of :func:`training_worlds`."""
     vec_cls = SubprocVecEnv if train.vec_env == "subproc" else DummyVecEnv
-    return make_vec_env(
-        functools.partial(make_env, env_config(cfg), expert=expert),
-        n_envs=train.n_envs,
-        seed=seed,
-        vec_env_cls=vec_cls,
-        monitor_kwargs={"info_keywords": MONITOR_KEYWORDS},
-    )
+    groups = env_config(cfg)
+    worlds = training_worlds(cfg, train)
+    factories = [
+        functools.partial(_monitored, {**groups, "world": worlds[i % len(worlds)]}, expert, seed + i)
+        for i in range(train.n_envs)
+    ]
+    # what SB3's make_vec_env does, with a world per env: env i's action space seeded seed + i now, the env
+    # itself at its first reset
+    venv = vec_cls(factories)
+    venv.seed(seed)
+    return venv
+
+
+def _monitored(groups: dict[str, Any], expert: ImitationConfig | None, action_seed: int) -> gym.Env:
+    env = make_env(groups, expert=expert)
+    env.action_space.seed(action_seed)
+    return Monitor(env, info_keywords=MONITOR_KEYWORDS)
 
 
 def wrap_normalize(venv: VecEnv, algo: AlgoConfig, gamma: float) -> VecEnv:

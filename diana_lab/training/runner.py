@@ -40,7 +40,14 @@ from diana_lab.tracking.names import eval_metrics
 from diana_lab.tracking.params import flatten
 from diana_lab.training.checkpoints import TrackedCheckpoints
 from diana_lab.training.context import TAG_GROUPS, RunContext, StopRun
-from diana_lab.training.envs import check_env, env_config, make_env, make_training_env, wrap_normalize
+from diana_lab.training.envs import (
+    check_env,
+    env_config,
+    make_env,
+    make_training_env,
+    training_worlds,
+    wrap_normalize,
+)
 from diana_lab.training.episode_stats import EpisodeStats
 from diana_lab.training.imitation import ImitationResult, imitate
 from diana_lab.training.periodic_eval import PeriodicEvaluation, save_model
@@ -311,6 +318,8 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
 
         check_perceivable(cfg, "train.imitation.expert=astar_seen")
     check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
+    for world in training_worlds(cfg, train_cfg)[1:]:  # and so does a bad train.worlds entry
+        check_env({**env_config(cfg), "world": world}, seed)
     tracker, run, status, summary = Tracker(), None, "FAILED", {}
     with interrupts_as_exceptions():
         try:
