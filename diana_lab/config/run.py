@@ -384,6 +384,9 @@ class ImitationConfig:
     epochs: int = 4  # passes over the aggregated data per iteration
     batch_size: int = 256
     learning_rate: float = 1.0e-3
+    # torch threads while fitting (0: every core this process may use): the training envs wait meanwhile, so
+    # the cores train.torch_threads leaves to them are free (2 threads fit the reference CNN 1.6x faster here)
+    fit_threads: int = 0
     # Gaussian policies only (PPO/A2C): the log std set after imitation, so RL starts near the imitated policy
     # (a categorical policy, action_space=discrete, has none: its exploration is the fitted probabilities)
     log_std: float | None = -1.5
@@ -404,6 +407,7 @@ class ImitationConfig:
         _positive_int(f"{key}.epochs", self.epochs)
         _positive_int(f"{key}.batch_size", self.batch_size)
         positive(f"{key}.learning_rate", self.learning_rate)
+        _non_negative_int(f"{key}.fit_threads", self.fit_threads)
         if self.log_std is not None:
             in_range(f"{key}.log_std", self.log_std, -5.0, 2.0)
 

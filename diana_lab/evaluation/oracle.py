@@ -27,6 +27,7 @@ drawn in. With these the oracle succeeds on 100 % of the Mars yard and ``craters
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from typing import Any
 
 import gymnasium as gym
@@ -197,30 +198,41 @@ class AStarOracle:
             known = self._seen
         return known
 
-    def _known(self, env: gym.Env, maps: tuple[CostMap, ...]) -> tuple[CostMap, ...]:
-        """``maps`` as far as the rover knows them (:meth:`knowledge`): unknown cells cost the least."""
+    def _known(self, env: gym.Env, maps: tuple[CostMap, ...]) -> Iterator[CostMap]:
+        """``maps`` as far as the rover knows them (:meth:`knowledge`): unknown cells cost the least. Built as
+        the planner asks for them: the first map almost always has a way, and each costs a pass over the grid."""
         known = self.knowledge(env, maps[0])
         if known is None:
-            return maps
-        out = []
+            yield from maps
+            return
         for cm in maps:
             cheapest = float(np.min(cm.cost[np.isfinite(cm.cost)], initial=1.0))
             cost = np.where(known, cm.cost, cheapest)  # nothing beyond the horizon, not even obstacles
-            out.append(CostMap(cost=cost, resolution=cm.resolution, x_min=cm.x_min, y_min=cm.y_min, layers={}))
-        return tuple(out)
+            yield CostMap(cost=cost, resolution=cm.resolution, x_min=cm.x_min, y_min=cm.y_min, layers={})
 
     def _plan(self, env: gym.Env, start: np.ndarray) -> None:
         base = env.unwrapped
         reach = self.spacing * base.mapping.extent
         self.waypoints = np.asarray(base.goal, dtype=np.float64)[None, :]  # if nothing else: head for the goal
-        known = self._known(env, self.costmaps(env))
-        self.known = known[0]
-        for cm in known:
+        self.known = None
+        for cm in self._known(env, self.costmaps(env)):
+            if self.known is None:
+                self.known = cm
             if self.receding:
                 choices = None
                 if base.mapping.discrete:  # choose among the actions the policy has, not the nearest to a free point
                     choices = np.asarray(start, dtype=np.float64) + base.mapping.world_offsets(base.pose_estimate.yaw)
-                wp = next_waypoint(cm, start, base.goal, reach, weighted=True, snap=self.snap, candidates=choices)
+                # a knowledge-limited map changes every step: search it only as far as this step needs
+                wp = next_waypoint(
+                    cm,
+                    start,
+                    base.goal,
+                    reach,
+                    weighted=True,
+                    snap=self.snap,
+                    candidates=choices,
+                    full_search=self.knowledge_radius is None,
+                )
                 if wp is not None:
                     self.waypoints = wp[None, :]
                     break

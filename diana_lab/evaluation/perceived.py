@@ -70,9 +70,16 @@ def _memory(env: gym.Env, who: str) -> HeightMemory:
 def sensor_hit(memory: HeightMemory, grid: CostMap) -> np.ndarray:
     """``grid.shape`` bool: the cells whose centre lies in a memory cell the sensor has hit."""
     ny, nx = grid.shape
+    if memory.origin is None:
+        return np.zeros((ny, nx), dtype=bool)
     cx, cy = grid.cell_to_world(np.arange(nx), np.arange(ny))
-    x, y = np.meshgrid(cx, cy)
-    return perceived_heights(memory, x, y)[1]
+    # perceived_heights' test, by rows and columns (the cells are a product grid): 1 ms, not 10, a step
+    n = memory.n
+    ix = np.floor((cx - memory.origin[0]) / memory.cell_size).astype(np.int64)
+    iy = np.floor((cy - memory.origin[1]) / memory.cell_size).astype(np.int64)
+    in_x, in_y = (ix >= 0) & (ix < n), (iy >= 0) & (iy < n)
+    known = np.isfinite(memory.height.reshape(n, n))[np.clip(iy, 0, n - 1)[:, None], np.clip(ix, 0, n - 1)[None, :]]
+    return known & in_y[:, None] & in_x[None, :]
 
 
 def perceived_heights(memory: HeightMemory, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

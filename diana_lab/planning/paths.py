@@ -37,6 +37,7 @@ from scipy.sparse import csr_array
 from scipy.sparse.csgraph import dijkstra
 
 from diana_lab.planning.costmap import CostMap
+from diana_lab.planning.grid_search import cost_to_go
 
 __all__ = ["Path", "next_waypoint", "plan", "shortest_path_length", "simplify"]
 
@@ -344,6 +345,7 @@ def next_waypoint(
     angles: int = 72,
     rings: int = 4,
     candidates: np.ndarray | None = None,
+    full_search: bool = True,
 ) -> np.ndarray | None:
     """The best next waypoint within ``reach`` of ``start_xy`` on the way to ``goal_xy``, or None.
 
@@ -357,15 +359,15 @@ def next_waypoint(
     Why not :func:`plan`: an expert asked for the next waypoint from every state an episode visits (DAgger
     labels the learner's states, not its own) would run a search and a smoothing per step (10-30 ms on the
     Mars yard). The edge costs are symmetric, so one search from the *goal* (cached) serves every start of
-    the episode, and a step costs one batch of segment integrals (about a millisecond).
+    the episode, and a step costs one batch of segment integrals (about a millisecond). With
+    ``full_search=False`` the map is searched only until the start and the candidates are settled
+    (:func:`~diana_lab.planning.grid_search.cost_to_go`, nothing cached): the choice for a map that changes
+    every step (an expert that knows only what the rover has seen), the same waypoint.
     """
     if not reach > 0.0:
         raise ValueError(f"next_waypoint: reach must be positive, got {reach!r}")
     start, goal, s, g = _endpoints(costmap, start_xy, goal_xy, snap, "next_waypoint")
     if s is None or g is None:
-        return None
-    to_go, _ = _search(costmap, g, weighted)
-    if not np.isfinite(to_go[s]):
         return None
     if candidates is None:
         theta = np.arange(angles) * (2.0 * math.pi / angles)
@@ -376,7 +378,15 @@ def next_waypoint(
     ix, iy = costmap.world_to_cell(cand[:, 0], cand[:, 1])
     inside = costmap.inside(ix, iy)
     cand, ix, iy = cand[inside], np.asarray(ix)[inside], np.asarray(iy)[inside]
-    remaining = to_go[np.ravel_multi_index((iy, ix), costmap.shape)]
+    cand_cells = np.ravel_multi_index((iy, ix), costmap.shape)
+    if full_search:
+        to_go, _ = _search(costmap, g, weighted)
+        start_to_go, remaining = to_go[s], to_go[cand_cells]
+    else:  # the start first: the search is bounded towards it
+        found = cost_to_go(_cell_costs(costmap, weighted), costmap.resolution, g, np.append(s, cand_cells))
+        start_to_go, remaining = found[0], found[1:]
+    if not np.isfinite(start_to_go):
+        return None
     if candidates is None and math.dist(start, goal) <= reach:
         cand, remaining = np.vstack([cand, goal]), np.append(remaining, 0.0)
     finite = np.isfinite(remaining)

@@ -26,6 +26,7 @@ the sensor can support -- RL then adapts it. Why not the ``imitation`` package: 
 from __future__ import annotations
 
 import math
+import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -256,6 +257,17 @@ def _loss(policy: Any, obs: dict[str, torch.Tensor], target: np.ndarray) -> torc
 def _fit(model: BaseAlgorithm, data: _Dataset, cfg: ImitationConfig, rng: np.random.Generator) -> tuple[float, float]:
     """Fit the policy to the labels (see :func:`_loss`, and :func:`_cost_loss` with ``cost_weight``); the mean
     action loss and cost loss (NaN without) of the last epoch."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(cfg.fit_threads or len(os.sched_getaffinity(0)))
+    try:
+        return _fit_epochs(model, data, cfg, rng)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _fit_epochs(
+    model: BaseAlgorithm, data: _Dataset, cfg: ImitationConfig, rng: np.random.Generator
+) -> tuple[float, float]:
     policy = model.policy
     vecnorm = model.get_vec_normalize_env()
     net = _cost_net(policy) if data.costs is not None else None

@@ -84,6 +84,18 @@ def test_perceived_heights_interpolate_seen_cells_and_leave_the_rest_unknown():
     assert not perceived_heights(empty, px, py)[1].any()
 
 
+def test_sensor_hit_is_perceived_heights_known_mask_on_the_cost_map_grid(ridge_env):
+    ridge_env.reset(seed=0, options=EPISODE.reset_options())
+    for _ in range(3):
+        ridge_env.step(ridge_env.action_space.sample())
+    memory, grid = ridge_env.sensor.encoder.memory, ridge_env.sampler.costmap
+    cx, cy = grid.cell_to_world(np.arange(grid.shape[1]), np.arange(grid.shape[0]))
+    expected = perceived_heights(memory, *np.meshgrid(cx, cy))[1]
+    assert 0.05 < expected.mean() < 0.95  # some of the map seen, some not: the test can tell them apart
+    np.testing.assert_array_equal(sensor_hit(memory, grid), expected)
+    assert not sensor_hit(HeightMemory(0.4, 4.0, 10, 10, 2.0, 2.0), grid).any()
+
+
 @pytest.mark.parametrize("spec", ["astar_perceived", "astar_seen"])
 def test_it_refuses_a_sensor_that_keeps_no_map(spec):
     from diana_lab.cli import UserError

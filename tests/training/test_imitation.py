@@ -62,8 +62,14 @@ def _imitate(seed: int, steps: int, epochs: int, extra: list[str] | None = None,
     return model, venv, cfg, imitate(model, venv, cfg, seed=seed, tracker=Tracker())
 
 
-def test_dagger_fits_the_expert_and_sets_the_exploration_noise():
-    model, venv, cfg, result = _imitate(seed=0, steps=256, epochs=8)
+def test_dagger_fits_the_expert_and_sets_the_exploration_noise(monkeypatch):
+    used = []
+    real = torch.set_num_threads
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: (used.append(n), real(n)))
+    before = torch.get_num_threads()
+    model, venv, cfg, result = _imitate(seed=0, steps=256, epochs=8, fit_threads=2)
+    assert used == [2, before] * 3  # every fit with fit_threads, then back to what the RL stage runs with
+    assert torch.get_num_threads() == before
     assert result.steps == 3 * 256
     assert [row["beta"] for row in result.history] == [1.0, 0.5, 0.25]
     assert result.history[0]["learner_fraction"] == 0.0 and result.history[-1]["learner_fraction"] > 0.5
@@ -160,6 +166,7 @@ def test_runner_logs_the_imitation_stage(tmp_path):
         ("train.imitation.iterations=0", "train.imitation.iterations"),
         ("train.imitation.expert=human", "train.imitation.expert"),
         ("train.imitation.knowledge_radius=0", "train.imitation.knowledge_radius"),
+        ("train.imitation.fit_threads=-1", "train.imitation.fit_threads"),
     ],
 )
 def test_bad_imitation_config_names_the_key(override, key):
