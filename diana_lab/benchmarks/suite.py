@@ -35,6 +35,7 @@ ORDER = (
     "env_steps_physics",
     "vec_env_scaling",
     "train_fps_ppo",
+    "expert_label_ms",
     "policy_latency",
     "rss_per_env",
 )

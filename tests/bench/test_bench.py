@@ -32,7 +32,7 @@ DOCUMENTED = {
     "sensor_ms_tinyrenderer", "elevation_map_ms", "sensor_ms_112", "physics_realtime_factor",
     "physics_realtime_factor_husky", "physics_realtime_factor_rocker_bogie", "kinematic_waypoints_per_s",
     "env_steps_per_s_kinematic", "env_steps_per_s_physics", "vec_env_scaling_2", "train_fps_ppo",
-    "policy_latency_ms_p50", "policy_latency_ms_p99", "rss_mb_per_env",
+    "policy_latency_ms_p50", "policy_latency_ms_p99", "rss_mb_per_env", "expert_label_ms",
 }  # fmt: skip
 
 
@@ -69,6 +69,13 @@ def test_subset_writes_the_documented_json(tmp_path):
     assert figures["sensor_ms_tinyrenderer"]["target"] is None and figures["sensor_ms_tinyrenderer"]["met"] is None
     # open3d and PyBullet cast the same rays against the same surface
     assert figures["sensor_ms_pybullet_raytest_mesh"]["max_range_diff_m"] < 1e-3
+
+
+def test_expert_label_figure_times_the_reference_recipes_expert(tmp_path):
+    cfg = compose(["quick=true", "repeats=1", f"output={tmp_path / 'b.json'}", "only=[expert_label_ms]"], "bench")
+    fig = run(cfg, command="pytest")["figures"]["expert_label_ms"]
+    assert fig["value"] > 0 and fig["unit"] == "ms" and fig["batch"] == "30 labels"
+    assert fig["note"].startswith("astar_seen on +experiment=reference")
 
 
 def test_every_documented_key_is_registered_once():
