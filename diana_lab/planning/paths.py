@@ -5,7 +5,10 @@ joins 8-neighbours that are both traversable (a diagonal only when both cells it
 too, see :mod:`diana_lab.planning.costmap`) and costs ``step length x mean cost of its two cells``. A full
 single-source search is ~10 ms on the 257 x 257 Mars yard; a Python-heap A* is slower there even with a good
 heuristic, because every pop costs microseconds of interpreter time. The last few searches are cached per
-start cell, so many goals from one start (an episode sampler) cost one search.
+start cell, so many goals from one start (an episode sampler) cost one search. A map used for one question
+only (a knowledge-limited expert's, new every step) is searched by the compiled, bounded
+:func:`~diana_lab.planning.grid_search.cost_to_go` instead (``next_waypoint(..., full_search=False)``): no
+graph to build, and it stops once the cells asked about are settled.
 
 Smoothing: grid paths turn only in 45 degree steps, so on open ground they overestimate the Euclidean length
 by up to ``sqrt(4 - 2 sqrt(2)) - 1 = 8.2 %`` (a 22.5 degree heading). Two passes make the path any-angle:
