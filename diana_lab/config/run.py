@@ -385,7 +385,7 @@ class ImitationConfig:
     batch_size: int = 256
     learning_rate: float = 1.0e-3
     # torch threads while fitting (0: every core this process may use): the training envs wait meanwhile, so
-    # the cores train.torch_threads leaves to them are free (2 threads fit the reference CNN 1.6x faster here)
+    # the cores train.torch_threads leaves to them are free (2 threads: 1.3-1.6x faster on the reference CNN here)
     fit_threads: int = 0
     # Gaussian policies only (PPO/A2C): the log std set after imitation, so RL starts near the imitated policy
     # (a categorical policy, action_space=discrete, has none: its exploration is the fitted probabilities)

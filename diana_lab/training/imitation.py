@@ -258,7 +258,8 @@ def _fit(model: BaseAlgorithm, data: _Dataset, cfg: ImitationConfig, rng: np.ran
     """Fit the policy to the labels (see :func:`_loss`, and :func:`_cost_loss` with ``cost_weight``); the mean
     action loss and cost loss (NaN without) of the last epoch."""
     threads = torch.get_num_threads()
-    torch.set_num_threads(cfg.fit_threads or len(os.sched_getaffinity(0)))
+    usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    torch.set_num_threads(cfg.fit_threads or usable)
     try:
         return _fit_epochs(model, data, cfg, rng)
     finally:
