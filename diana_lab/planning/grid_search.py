@@ -44,7 +44,7 @@ def cost_to_go(cost: np.ndarray, resolution: float, source: int, targets: np.nda
     if not 0 <= source < n or (targets.size and (targets.min() < 0 or targets.max() >= n)):
         raise ValueError(f"cost_to_go: cell indices must lie in [0, {n}), got source {source} and targets {targets}")
     finite = cost[np.isfinite(cost)]
-    if not np.isfinite(cost.flat[source]) or not finite.size:
+    if not targets.size or not np.isfinite(cost.flat[source]) or not finite.size:  # the kernel reads targets[0]
         return np.full(targets.shape, np.inf)
     return _search(cost, float(resolution), int(source), targets, float(finite.min()))
 

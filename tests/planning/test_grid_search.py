@@ -40,6 +40,7 @@ def test_an_untraversable_source_reaches_nothing_and_bad_indices_are_refused():
     cm = _random_costmap(np.random.default_rng(0))
     wall = int(np.flatnonzero(~cm.free)[0])
     assert np.isinf(cost_to_go(cm.cost, 0.2, wall, np.arange(10))).all()
+    assert cost_to_go(cm.cost, 0.2, int(np.flatnonzero(cm.free)[0]), np.zeros(0, np.int64)).shape == (0,)
     with pytest.raises(ValueError, match="cell indices"):
         cost_to_go(cm.cost, 0.2, cm.cost.size, np.arange(3))
     with pytest.raises(ValueError, match="2-D"):
