@@ -80,6 +80,33 @@ class HeightMemory:
         self.height[cell] = self._top[cell]
         self._top[cell] = -np.inf
 
+    def heights_at(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The map's heights at world points ``x, y`` (same shape) and whether each point's cell was hit.
+
+        Bilinear between the centres of the four surrounding cells when all are known, else the height of the
+        point's own cell; NaN where that cell is unknown (or off the map)."""
+        x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        if self.origin is None:
+            return np.full(x.shape, np.nan), np.zeros(x.shape, dtype=bool)
+        n, size = self.n, self.cell_size
+        grid = self.height.reshape(n, n).astype(np.float64)  # [iy, ix]
+        fx, fy = (x - self.origin[0]) / size, (y - self.origin[1]) / size
+        ix, iy = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
+        inside = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
+        own = np.full(x.shape, np.nan)
+        own[inside] = grid[iy[inside], ix[inside]]
+        ux, uy = fx - 0.5, fy - 0.5  # cell-centre coordinates
+        jx, jy = np.floor(ux).astype(np.int64), np.floor(uy).astype(np.int64)
+        tx, ty = ux - jx, uy - jy
+        ok = (jx >= 0) & (jx < n - 1) & (jy >= 0) & (jy < n - 1)
+        jx, jy = np.clip(jx, 0, max(n - 2, 0)), np.clip(jy, 0, max(n - 2, 0))
+        h00, h10 = grid[jy, jx], grid[jy, np.minimum(jx + 1, n - 1)]
+        h01, h11 = grid[np.minimum(jy + 1, n - 1), jx], grid[np.minimum(jy + 1, n - 1), np.minimum(jx + 1, n - 1)]
+        bilinear = (1 - ty) * ((1 - tx) * h00 + tx * h10) + ty * ((1 - tx) * h01 + tx * h11)
+        known = np.isfinite(own)
+        height = np.where(ok & np.isfinite(bilinear), bilinear, own)
+        return np.where(known, height, np.nan), known
+
     def fuse(self, levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
         """One frame of an ``elevation_map`` encoder: ``levelled`` points ``(N, 3)`` in the heading-aligned,
         gravity-up frame at the rover base, the base's world ``position`` (x, y, z) and ``yaw``. Updates the

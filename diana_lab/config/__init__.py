@@ -104,6 +104,12 @@ def validate(cfg: DictConfig, groups: Sequence[str] = GROUPS) -> dict[str, Any]:
     typed = {g: to_object(g, cfg[g]) for g in groups if g in cfg}
     if "algo" in typed and "action_space" in typed:
         check_action_space(typed["algo"], typed["action_space"].shape)
+    shape = typed["action_space"].shape if "action_space" in typed else "discrete"
+    if "eval" in typed and typed["eval"].shield.enabled and shape != "discrete":
+        raise ConfigError(
+            f"eval.shield.enabled with action_space.shape={shape}: the slope shield picks among a discrete action "
+            "space's candidates; use action_space=discrete or eval.shield.enabled=false"
+        )
     return typed
 
 

@@ -9,9 +9,31 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import ConfigError, non_negative, one_of, ordered
+from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, ordered, positive
 
 DYNAMICS_OPTIONS = ("kinematic", "physics")
+
+
+@dataclass
+class ShieldConfig:
+    """The slope shield (:mod:`diana_lab.planning.shield`): before a learnt policy's candidate waypoint is
+    driven, the rover's own fine height map checks the straight drive to it; among the policy's ``top_k``
+    most probable candidates the first it does not see too steep is driven. Only for discrete action spaces."""
+
+    enabled: bool = False
+    cell_size: float = 0.2  # m: the shield's own height map of the sensor's returns (finer than the policy's)
+    limit_deg: float = 25.0  # veto a drive where the map shows a pitch or roll above this (unknown ground passes)
+    top_k: int = 16  # candidates tried, most probable first; if all are vetoed the policy's own choice is driven
+    spacing: float = 0.2  # m between the checks along the drive
+    radius: float = 64.0  # m: half-width of the square the map covers around the episode's first pose
+
+    def __post_init__(self) -> None:
+        positive("eval.shield.cell_size", self.cell_size)
+        positive("eval.shield.spacing", self.spacing)
+        positive("eval.shield.radius", self.radius)
+        in_range("eval.shield.limit_deg", self.limit_deg, 0.0, 90.0, inclusive=False)
+        if isinstance(self.top_k, bool) or not isinstance(self.top_k, int) or self.top_k < 1:
+            raise ConfigError(f"eval.shield.top_k: expected a positive integer, got {self.top_k!r}")
 
 
 @dataclass
@@ -28,6 +50,7 @@ class EvalConfig:
     sensor_noise: list[float] = field(default_factory=list)  # noise levels to sweep; []: the configured sensor
     video: bool = True  # a GIF of the first episode
     plots: bool = True  # trajectory and tilt plots
+    shield: ShieldConfig = field(default_factory=ShieldConfig)  # a slope check on learnt discrete policies
 
     def __post_init__(self) -> None:
         if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes <= 0:

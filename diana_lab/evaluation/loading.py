@@ -43,7 +43,7 @@ from omegaconf import DictConfig, OmegaConf
 from diana_lab.cli import UserError
 from diana_lab.config import ConfigError
 from diana_lab.evaluation.oracle import AStarOracle
-from diana_lab.evaluation.policies import Policy, SB3Policy, StraightLine
+from diana_lab.evaluation.policies import Policy, SB3Policy, ShieldedPolicy, StraightLine
 
 __all__ = ["BASELINES", "PRETRAINED_DIR", "LoadedPolicy", "check_observation_space", "load_policy", "load_sb3"]
 
@@ -215,8 +215,27 @@ BASELINES: dict[str, Callable[[], Policy]] = {
 
 
 def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
-    """The policy named by ``spec`` (see the module docstring); user mistakes raise :class:`UserError`."""
-    spec = str(spec).strip()
+    """The policy named by ``spec`` (see the module docstring); user mistakes raise :class:`UserError`.
+
+    With ``eval.shield.enabled`` a learnt discrete policy drives behind the slope shield
+    (:class:`~diana_lab.evaluation.policies.ShieldedPolicy`); the baselines plan for themselves and run
+    without it (the note says so)."""
+    loaded = _load(str(spec).strip(), cfg, eval_cfg)
+    shield = getattr(eval_cfg, "shield", None)  # None: the baselines' callers pass no evaluation settings
+    if shield is None or not shield.enabled:
+        return loaded
+    if isinstance(loaded.policy, SB3Policy):
+        try:
+            loaded.policy = ShieldedPolicy(loaded.policy, shield)
+        except ConfigError as exc:
+            raise UserError(str(exc)) from exc
+        return loaded
+    unshielded = f"eval.shield applies to learnt discrete policies; policy={loaded.label} runs without it"
+    loaded.note = f"{loaded.note} ({unshielded})" if loaded.note else unshielded
+    return loaded
+
+
+def _load(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     if spec in BASELINES:
         return LoadedPolicy(BASELINES[spec](), spec)
     if spec == "cost_to_go_bound":  # reads the run's network settings, unlike the other baselines

@@ -83,32 +83,9 @@ def sensor_hit(memory: HeightMemory, grid: CostMap) -> np.ndarray:
 
 
 def perceived_heights(memory: HeightMemory, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The memory's heights at world points ``x, y`` (same shape) and whether each point's cell was hit.
-
-    Bilinear between the centres of the four surrounding memory cells when all are known, else the height
-    of the point's own cell; NaN where that cell is unknown (or off the map).
-    """
-    unknown = np.full(np.shape(x), np.nan), np.zeros(np.shape(x), dtype=bool)
-    if memory.origin is None:
-        return unknown
-    n, size = memory.n, memory.cell_size
-    grid = memory.height.reshape(n, n).astype(np.float64)  # [iy, ix]
-    fx, fy = (x - memory.origin[0]) / size, (y - memory.origin[1]) / size
-    ix, iy = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
-    inside = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
-    own = np.full(np.shape(x), np.nan)
-    own[inside] = grid[iy[inside], ix[inside]]
-    ux, uy = fx - 0.5, fy - 0.5  # cell-centre coordinates
-    jx, jy = np.floor(ux).astype(np.int64), np.floor(uy).astype(np.int64)
-    tx, ty = ux - jx, uy - jy
-    ok = (jx >= 0) & (jx < n - 1) & (jy >= 0) & (jy < n - 1)
-    jx, jy = np.clip(jx, 0, max(n - 2, 0)), np.clip(jy, 0, max(n - 2, 0))
-    h00, h10 = grid[jy, jx], grid[jy, np.minimum(jx + 1, n - 1)]
-    h01, h11 = grid[np.minimum(jy + 1, n - 1), jx], grid[np.minimum(jy + 1, n - 1), np.minimum(jx + 1, n - 1)]
-    bilinear = (1 - ty) * ((1 - tx) * h00 + tx * h10) + ty * ((1 - tx) * h01 + tx * h11)
-    known = np.isfinite(own)
-    height = np.where(ok & np.isfinite(bilinear), bilinear, own)
-    return np.where(known, height, np.nan), known
+    """The memory's heights at world points ``x, y`` and whether each point's cell was hit
+    (:meth:`HeightMemory.heights_at`: bilinear between known cell centres, NaN where unknown)."""
+    return memory.heights_at(x, y)
 
 
 class PerceivedMapOracle(AStarOracle):

@@ -21,7 +21,7 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["Policy", "SB3Policy", "StraightLine", "waypoint_action"]
+__all__ = ["Policy", "SB3Policy", "ShieldedPolicy", "StraightLine", "sb3_policy", "waypoint_action"]
 
 
 @runtime_checkable
@@ -87,10 +87,79 @@ class SB3Policy:
             torch.manual_seed(self.seed + self._episodes)
         self._episodes += 1
 
-    def act(self, obs: Any, env: gym.Env) -> np.ndarray:
+    def _normalized(self, obs: Any) -> Any:
         if self.vecnormalize is not None and getattr(self.vecnormalize, "norm_obs", False):
-            obs = self.vecnormalize.normalize_obs(obs)
-        action, _ = self.model.predict(obs, deterministic=self.deterministic)
+            return self.vecnormalize.normalize_obs(obs)
+        return obs
+
+    def act(self, obs: Any, env: gym.Env) -> np.ndarray:
+        action, _ = self.model.predict(self._normalized(obs), deterministic=self.deterministic)
         if self.discrete:
             return np.asarray(action, dtype=np.int64).reshape(())  # a candidate index, never a float
         return np.asarray(action, dtype=np.float32).reshape(-1)
+
+    def ranking(self, obs: Any) -> np.ndarray:
+        """A discrete policy's candidates, its choice first: the most probable (deterministic) or a sample,
+        then the others by decreasing probability (ties: lower index first, as ``predict``'s argmax)."""
+        import torch
+
+        if not self.discrete:
+            raise TypeError("SB3Policy.ranking: only a discrete action space has candidates to rank")
+        obs_t, _ = self.model.policy.obs_to_tensor(self._normalized(obs))
+        with torch.no_grad():
+            dist = self.model.policy.get_distribution(obs_t).distribution
+            probs = dist.probs[0].cpu().numpy()
+            first = int(probs.argmax()) if self.deterministic else int(dist.sample()[0])
+        order = np.argsort(-probs, kind="stable")
+        return np.concatenate([[first], order[order != first]]).astype(np.int64)
+
+
+class ShieldedPolicy:
+    """A discrete learnt policy behind the slope shield (:mod:`diana_lab.planning.shield`): the first of its
+    ``top_k`` most probable candidates whose drive the rover's own fine height map does not call too steep.
+
+    The shield's map is fed every sensor frame the env takes (``env.unwrapped.sensor.last_frame``): one per
+    reset and per step, the frame the observation was encoded from."""
+
+    def __init__(self, policy: SB3Policy, cfg: Any) -> None:
+        if not policy.discrete:
+            from diana_lab.config import ConfigError
+
+            raise ConfigError(
+                "eval.shield.enabled: the slope shield picks among a discrete action space's candidates; this "
+                "policy's actions are continuous (use action_space=discrete, or eval.shield.enabled=false)"
+            )
+        self.policy, self.cfg = policy, cfg
+        self.shield: Any = None  # built on the first reset, from the env's robot
+
+    @property
+    def name(self) -> str:
+        return self.policy.name
+
+    @name.setter
+    def name(self, value: str) -> None:
+        self.policy.name = value
+
+    def reset(self, env: gym.Env) -> None:
+        from diana_lab.planning.shield import SlopeShield
+
+        self.policy.reset(env)
+        if self.shield is None:
+            self.shield = SlopeShield(self.cfg, env.unwrapped.robot)
+        self.shield.reset()
+
+    def act(self, obs: Any, env: gym.Env) -> np.ndarray:
+        base = env.unwrapped
+        frame = base.sensor.last_frame
+        if frame is not None:
+            self.shield.observe(frame.points_world(), frame.position[:2])
+        est = base.pose_estimate
+        k = self.shield.choose(self.policy.ranking(obs), base.mapping.world_offsets(est.yaw), est.xy)
+        return np.asarray(k, dtype=np.int64).reshape(())
+
+
+def sb3_policy(model: Any, vecnormalize: Any, eval_cfg: Any) -> SB3Policy | ShieldedPolicy:
+    """The evaluation's policy for an SB3 model: :class:`SB3Policy`, behind the slope shield when
+    ``eval.shield.enabled`` (``eval_cfg`` an ``EvalConfig``)."""
+    policy = SB3Policy(model, vecnormalize, deterministic=eval_cfg.deterministic, seed=eval_cfg.seed)
+    return ShieldedPolicy(policy, eval_cfg.shield) if eval_cfg.shield.enabled else policy

@@ -50,6 +50,7 @@ class RaySensor:
         self.encoder: Encoder = make_encoder(cfg, self.image_shape, self.axis_cos)
         self.rng = np.random.default_rng(0)  # replaced by reset(); keeps capture() usable before it
         self._mount32 = self.mount.astype(np.float32)
+        self.last_frame: SensorFrame | None = None  # the frame of the latest observe()
 
     # ------------------------------------------------------------------ what subclasses define
     def pattern(self) -> np.ndarray:
@@ -112,5 +113,7 @@ class RaySensor:
         return self.encoder(frame)
 
     def observe(self, position: np.ndarray, rpy: np.ndarray) -> np.ndarray:
-        """``encode(capture(position, rpy))``. Pickling the sensor is safe: the caster drops its scene."""
-        return self.encoder(self.capture(position, rpy))
+        """``encode(capture(position, rpy))``; the frame stays readable as :attr:`last_frame` (the slope shield
+        maps it). Pickling the sensor is safe: the caster drops its scene."""
+        self.last_frame = self.capture(position, rpy)
+        return self.encoder(self.last_frame)

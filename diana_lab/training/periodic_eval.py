@@ -88,15 +88,11 @@ class PeriodicEvaluation(BaseCallback):
         return self._run_env
 
     def evaluate(self) -> dict[str, Any]:
-        from diana_lab.evaluation import SB3Policy, run_suite, summarize
+        from diana_lab.evaluation import run_suite, summarize
+        from diana_lab.evaluation.policies import sb3_policy
 
         env = self.env()
-        policy = SB3Policy(
-            self.model,
-            self.model.get_vec_normalize_env(),
-            deterministic=self.cfg.deterministic,
-            seed=self.cfg.seed,
-        )
+        policy = sb3_policy(self.model, self.model.get_vec_normalize_env(), self.cfg)
         summary = summarize(run_suite(policy, env, self._suite))
         step = self.model.num_timesteps
         self.last_step, self.last_summary = step, summary

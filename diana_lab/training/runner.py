@@ -236,16 +236,12 @@ class TrainingRun:
             self.tracker.log_artifact(path, "model")
         if not self.train_cfg.final_eval:
             return self.evaluator.last_summary or {}
-        from diana_lab.evaluation import SB3Policy, evaluate
+        from diana_lab.evaluation import evaluate
+        from diana_lab.evaluation.policies import sb3_policy
 
         out = self.run_dir / "eval"
         env = self.evaluator.env()  # the evaluation env (its dynamics already applied)
-        policy = SB3Policy(
-            self.model,
-            self.model.get_vec_normalize_env(),
-            deterministic=self.eval_cfg.deterministic,
-            seed=self.eval_cfg.seed,
-        )
+        policy = sb3_policy(self.model, self.model.get_vec_normalize_env(), self.eval_cfg)
         summary = evaluate(policy, env, self.eval_cfg, out)
         self.tracker.log_metrics(eval_metrics(summary), self.model.num_timesteps)
         self.tracker.log_artifacts(out, "eval")

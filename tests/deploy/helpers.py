@@ -18,6 +18,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from diana_lab.agents.factory import build_model
 from diana_lab.config import compose, to_object
+from diana_lab.config.evaluation import EvalConfig
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.rotations import pitch_matrix
 from diana_lab.sim.world import World
@@ -36,7 +37,7 @@ TINY_ALGO = [
     "algo.extractor.sensor_features=16",
     "algo.extractor.point_hidden=[16]",
 ]
-EVAL = type("EvalSettings", (), {"deterministic": True, "seed": 0})()
+EVAL = EvalConfig()  # deterministic, no shield
 
 
 def run_config(*overrides: str):

@@ -2,7 +2,8 @@ import numpy as np
 import pytest
 from gymnasium import spaces
 
-from diana_lab.config import ConfigError, compose
+from diana_lab.cli import UserError
+from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.evaluation import run_suite
 from diana_lab.evaluation.loading import check_observation_space, config_differences, load_policy
 from diana_lab.evaluation.suite import EpisodeSpec
@@ -53,8 +54,12 @@ def test_a_saved_sb3_model_loads_runs_and_is_refused_on_other_observations(tmp_p
     )
     model.save(tmp_path / "model.zip")
     cfg = compose(["world=flat"])
-    loaded = load_policy(str(tmp_path / "model.zip"), cfg, type("E", (), {"deterministic": True, "seed": 0})())
+    loaded = load_policy(str(tmp_path / "model.zip"), cfg, to_object("eval", cfg.eval))
     assert loaded.model is not None and loaded.policy.vecnormalize is None
+    # the slope shield picks among candidates: a continuous policy behind it is refused, naming the key
+    shielded = compose(["world=flat", "eval.shield.enabled=true"])
+    with pytest.raises(UserError, match=r"eval\.shield\.enabled.*continuous"):
+        load_policy(str(tmp_path / "model.zip"), shielded, to_object("eval", shielded.eval))
     check_observation_space(loaded.model.observation_space, flat_env.observation_space, loaded.label)
     spec = EpisodeSpec(np.array([-3.0, 0.0]), 0.0, np.array([3.0, 0.0]), seed=1)
     assert len(run_suite(loaded.policy, flat_env, [spec])) == 1
@@ -73,5 +78,5 @@ def test_pretrained_without_its_files_says_what_is_missing(tmp_path, monkeypatch
 
     monkeypatch.setattr(loading, "PRETRAINED_DIR", tmp_path)
     with pytest.raises(UserError, match="not shipped") as err:
-        load_policy("pretrained", compose([]), type("E", (), {"deterministic": True, "seed": 0})())
+        load_policy("pretrained", compose([]), to_object("eval", compose([]).eval))
     assert str(tmp_path / "model.zip") in str(err.value)

@@ -124,3 +124,50 @@ def test_the_exported_policy_drives_like_torch_on_1000_mars_yard_observations(tm
     # not degenerate: the recording spans many episodes and the policy picks many candidates
     assert sum(rec.starts) >= 10
     assert len(np.unique(np.round(np.asarray(rec.waypoints) - np.asarray(rec.poses)[:, :2], 3), axis=0)) > 50
+
+
+def test_the_preset_drives_it_behind_the_slope_shield_which_only_reorders_its_own_candidates():
+    """The first allowed of the policy's own ranking is driven: the policy's choice itself when the shield
+    allows it, another of its top_k when not (here forced by a 0-degree limit on a map of a rough start)."""
+    from diana_lab.evaluation.policies import ShieldedPolicy
+
+    cfg = reference_cfg()
+    loaded = load_policy("pretrained", cfg, to_object("eval", cfg.eval))
+    assert isinstance(loaded.policy, ShieldedPolicy) and loaded.policy.name == "pretrained"
+    env = RoverNavEnv(config=env_config(cfg, None, loaded.train_cfg))
+    try:
+        obs, _ = env.reset(seed=3)
+        policy = loaded.policy
+        policy.reset(env)
+        ranking = policy.policy.ranking(obs)
+        assert sorted(ranking.tolist()) == list(range(env.action_space.n))  # every candidate, once
+        assert int(ranking[0]) == int(policy.policy.act(obs, env))  # its choice first, as predict's
+        action = int(policy.act(obs, env))
+        base, shield = env.unwrapped, policy.shield
+        offsets = base.mapping.world_offsets(base.pose_estimate.yaw)
+        xy = base.pose_estimate.xy
+        first_allowed = next(int(k) for k in ranking[: shield.cfg.top_k] if shield.allows(xy, offsets[k]))
+        assert action == first_allowed
+        assert shield.memory.origin is not None  # the reset frame was mapped
+        # nothing the map shows is too steep at 89 deg: the policy's own choice; at ~0 deg only drives over
+        # ground it has not seen (or perfectly level) pass, and the count of vetoes says when it differed
+        shield.cfg.limit_deg = 89.0
+        assert int(policy.act(obs, env)) == int(ranking[0])
+        shield.cfg.limit_deg = 1e-9
+        before = shield.vetoes
+        strict = int(policy.act(obs, env))
+        unseen = [int(k) for k in ranking[: shield.cfg.top_k] if shield.steepest_deg(xy, offsets[k]) == 0.0]
+        assert strict == (unseen[0] if unseen else int(ranking[0]))
+        assert shield.vetoes - before == int(strict != int(ranking[0]))
+    finally:
+        env.close()
+
+
+def test_without_the_shield_it_is_the_bare_policy_and_baselines_say_they_run_without_it():
+    from diana_lab.evaluation.policies import SB3Policy
+
+    cfg = reference_cfg("eval.shield.enabled=false")
+    assert type(load_policy("pretrained", cfg, to_object("eval", cfg.eval)).policy) is SB3Policy
+    cfg = reference_cfg()
+    loaded = load_policy("straight", cfg, to_object("eval", cfg.eval))
+    assert "runs without it" in loaded.note and "eval.shield" in loaded.note

@@ -129,6 +129,14 @@ def test_bad_values_exit_2_without_a_run(override, message, tmp_path, capsys):
     assert not runs(tmp_path)[1]  # validated before any MLflow run is opened
 
 
+def test_the_slope_shield_on_continuous_waypoints_exits_2_naming_both_keys(tmp_path, capsys):
+    args = ["algo=ppo", "eval.shield.enabled=true", *TINY, *ALGO_TINY["ppo"], *store_args(tmp_path)]
+    assert run_in_process(args) == 2
+    err = capsys.readouterr().err
+    assert "eval.shield.enabled with action_space.shape=square" in err and "Traceback" not in err
+    assert not runs(tmp_path)[1]
+
+
 def test_an_algo_that_cannot_drive_discrete_waypoints_exits_2_naming_both_keys(tmp_path, capsys):
     args = ["algo=sac", "action_space=discrete", *TINY, *ALGO_TINY["sac"], *store_args(tmp_path)]
     assert run_in_process(args) == 2
@@ -147,11 +155,13 @@ def test_discrete_waypoints_train_through_imitation_ppo_and_evaluation(tmp_path)
         "train.imitation.enabled=true",
         "train.imitation.iterations=2",
         "train.imitation.steps_per_iteration=64",
+        "eval.shield.enabled=true",  # its evaluations drive behind the slope shield
         *store_args(tmp_path),
     ]
     assert run_in_process(args) == 0
     client, (run,) = runs(tmp_path)
     assert run.info.status == "FINISHED" and run.data.params["action_space.shape"] == "discrete"
+    assert run.data.params["eval.shield.enabled"] == "True"
     assert run.data.tags["imitation_steps"] == "128" and "eval_success_rate" in run.data.metrics
     assert {m.step for m in client.get_metric_history(run.info.run_id, "imitation/loss")} == {0, 1}
     local = client.download_artifacts(run.info.run_id, "model/model.zip", str(tmp_path / "dl"))

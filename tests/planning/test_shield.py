@@ -1,0 +1,87 @@
+"""The slope shield: what it reads off its own map, which candidate it lets through, and its config checks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from diana_lab.config import ConfigError, to_object
+from diana_lab.config.evaluation import ShieldConfig
+from diana_lab.planning.shield import SlopeShield
+
+ROBOT = to_object("robot", "jackal")  # wheelbase 0.262 m, track 0.376 m
+
+
+def shield(**overrides) -> SlopeShield:
+    return SlopeShield(ShieldConfig(enabled=True, **overrides), ROBOT)
+
+
+def ground(fn, half: float = 6.0, step: float = 0.05) -> np.ndarray:
+    """Dense world points ``z = fn(x, y)`` over a square around the origin, off the 0.2 m cells' edges (a
+    point on an edge may fall in either cell, and the map keeps each cell's highest point)."""
+    g = np.arange(-half, half + 1e-9, step) + step / 2
+    x, y = np.meshgrid(g, g)
+    return np.column_stack([x.ravel(), y.ravel(), fn(x, y).ravel()])
+
+
+def seen(fn, **overrides) -> SlopeShield:
+    s = shield(**overrides)
+    s.observe(ground(fn), np.zeros(2))
+    return s
+
+
+@pytest.mark.parametrize("slope_deg", [10.0, 20.0, 30.0])
+def test_a_ramp_reads_as_its_own_slope_driving_up_it_or_across_it(slope_deg):
+    s = seen(lambda x, y: math.tan(math.radians(slope_deg)) * x)
+    up = s.steepest_deg(np.zeros(2), np.array([3.0, 0.0]))  # pitch
+    across = s.steepest_deg(np.zeros(2), np.array([0.0, 3.0]))  # roll
+    assert up == pytest.approx(slope_deg, abs=1.0)
+    assert across == pytest.approx(slope_deg, abs=1.0)
+    assert s.allows(np.zeros(2), np.array([3.0, 0.0])) == (slope_deg <= 25.0)
+
+
+def test_a_step_vetoes_only_the_drives_that_cross_it():
+    s = seen(lambda x, y: np.where(x > 2.0, 0.4, 0.0))  # a 0.4 m ledge 2 m ahead
+    assert not s.allows(np.zeros(2), np.array([3.0, 0.0]))
+    assert s.allows(np.zeros(2), np.array([1.5, 0.0]))  # stops before it
+    assert s.allows(np.zeros(2), np.array([0.0, 3.0]))  # along it
+    assert s.allows(np.zeros(2), np.array([-3.0, 0.0]))  # away from it
+
+
+def test_ground_it_has_not_seen_passes():
+    s = shield()
+    assert s.steepest_deg(np.zeros(2), np.array([3.0, 0.0])) == 0.0  # nothing seen yet
+    s.observe(ground(lambda x, y: 0.6 * x, half=1.0), np.zeros(2))  # 31 deg, but only within 1 m
+    assert s.steepest_deg(np.array([3.0, 3.0]), np.array([2.0, 0.0])) == 0.0  # a drive far from it
+    assert not s.allows(np.zeros(2), np.array([0.5, 0.0]))
+    s.reset()
+    assert s.allows(np.zeros(2), np.array([0.5, 0.0]))  # a new episode forgets the map
+
+
+def test_choose_takes_the_first_allowed_of_the_top_k_and_counts_vetoes():
+    s = seen(lambda x, y: np.where(x > 1.0, 0.5, 0.0))  # a wall 1 m ahead (+x)
+    offsets = np.array([[3.0, 0.0], [0.0, 3.0], [2.0, 0.1], [-3.0, 0.0]])
+    assert s.choose([0, 2, 1, 3], offsets, np.zeros(2)) == 1  # 0 and 2 cross the wall
+    assert (s.decisions, s.vetoes) == (1, 1)
+    assert s.choose([1, 0], offsets, np.zeros(2)) == 1  # the policy's own choice is allowed: no veto
+    assert (s.decisions, s.vetoes) == (2, 1)
+
+
+def test_choose_falls_back_to_the_policys_choice_beyond_top_k_or_when_all_are_vetoed():
+    s = seen(lambda x, y: np.where(x > 1.0, 0.5, 0.0), top_k=2)
+    offsets = np.array([[3.0, 0.0], [2.0, 0.1], [0.0, 3.0]])
+    assert s.choose([0, 1, 2], offsets, np.zeros(2)) == 0  # the allowed one is third: out of reach
+    assert s.vetoes == 0
+    with pytest.raises(ValueError, match="at least one"):
+        s.choose([], offsets, np.zeros(2))
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("cell_size", 0.0), ("spacing", -0.1), ("radius", 0.0), ("limit_deg", 0.0), ("limit_deg", 90.0), ("top_k", 0)],
+)
+def test_bad_settings_name_their_key(key, value):
+    with pytest.raises(ConfigError, match=f"eval.shield.{key}"):
+        ShieldConfig(**{key: value})
