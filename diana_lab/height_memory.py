@@ -46,6 +46,7 @@ class HeightMemory:
         self.n = max(1, math.ceil(2.0 * radius / cell_size))
         self.height = np.full(self.n * self.n, np.nan, dtype=np.float32)  # world z; NaN = never seen
         self.origin: np.ndarray | None = None  # world xy of the map's corner (set by the first update)
+        self.last_world: np.ndarray | None = None  # the world points of the latest fuse()
         self._top = np.full(self.n * self.n, -np.inf, dtype=np.float32)  # scratch, back to -inf after use
         # window cell centres in the heading-aligned frame (x forward, y left), row-major
         ahead = extent_forward - (np.arange(rows) + 0.5) * cell_size
@@ -88,36 +89,45 @@ class HeightMemory:
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
         if self.origin is None:
             return np.full(x.shape, np.nan), np.zeros(x.shape, dtype=bool)
-        n, size = self.n, self.cell_size
-        grid = self.height.reshape(n, n).astype(np.float64)  # [iy, ix]
-        fx, fy = (x - self.origin[0]) / size, (y - self.origin[1]) / size
-        ix, iy = np.floor(fx).astype(np.int64), np.floor(fy).astype(np.int64)
-        inside = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
-        own = np.full(x.shape, np.nan)
-        own[inside] = grid[iy[inside], ix[inside]]
-        ux, uy = fx - 0.5, fy - 0.5  # cell-centre coordinates
-        jx, jy = np.floor(ux).astype(np.int64), np.floor(uy).astype(np.int64)
-        tx, ty = ux - jx, uy - jy
-        ok = (jx >= 0) & (jx < n - 1) & (jy >= 0) & (jy < n - 1)
-        jx, jy = np.clip(jx, 0, max(n - 2, 0)), np.clip(jy, 0, max(n - 2, 0))
-        h00, h10 = grid[jy, jx], grid[jy, np.minimum(jx + 1, n - 1)]
-        h01, h11 = grid[np.minimum(jy + 1, n - 1), jx], grid[np.minimum(jy + 1, n - 1), np.minimum(jx + 1, n - 1)]
-        bilinear = (1 - ty) * ((1 - tx) * h00 + tx * h10) + ty * ((1 - tx) * h01 + tx * h11)
+        n, size, flat = self.n, self.cell_size, self.height  # flat [iy * n + ix], float32
+        f = (np.stack([x, y]) - self.origin.reshape((2,) + (1,) * x.ndim)) / size  # [0] x, [1] y, in cells
+        i = np.floor(f).astype(np.int64)
+        inside = ((i >= 0) & (i < n)).all(axis=0)
+        ic = np.clip(i, 0, n - 1)
+        u = f - 0.5  # cell-centre coordinates
+        j = np.floor(u).astype(np.int64)
+        t = u - j
+        ok = ((j >= 0) & (j < n - 1)).all(axis=0)
+        jc = np.clip(j, 0, max(n - 2, 0))
+        corner = jc[1] * n + jc[0]
+        step = min(1, n - 1)  # the next cell right (and a row up: step * n); none on a 1-cell map
+        # one gather, widening only the cells read: the point's own cell and the four around it
+        cells = np.stack([ic[1] * n + ic[0], corner, corner + step, corner + step * n, corner + step * n + step])
+        h = flat.take(cells).astype(np.float64)
+        own = np.where(inside, h[0], np.nan)
+        tx, ty = t[0], t[1]
+        bilinear = (1 - ty) * ((1 - tx) * h[1] + tx * h[2]) + ty * ((1 - tx) * h[3] + tx * h[4])
         known = np.isfinite(own)
         height = np.where(ok & np.isfinite(bilinear), bilinear, own)
         return np.where(known, height, np.nan), known
 
-    def fuse(self, levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
-        """One frame of an ``elevation_map`` encoder: ``levelled`` points ``(N, 3)`` in the heading-aligned,
-        gravity-up frame at the rover base, the base's world ``position`` (x, y, z) and ``yaw``. Updates the
-        map and returns the window around the rover, flat, heights relative to the base, ``-inf`` unknown."""
+    @staticmethod
+    def to_world(levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
+        """Points in the heading-aligned, gravity-up frame at the rover base -> the world frame (same dtype)."""
         c, s = math.cos(yaw), math.sin(yaw)
         world = np.empty_like(levelled)
         world[:, 0] = c * levelled[:, 0] - s * levelled[:, 1] + position[0]
         world[:, 1] = s * levelled[:, 0] + c * levelled[:, 1] + position[1]
         world[:, 2] = levelled[:, 2] + position[2]
+        return world
+
+    def fuse(self, levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
+        """One frame of an ``elevation_map`` encoder: ``levelled`` points ``(N, 3)`` in the heading-aligned,
+        gravity-up frame at the rover base, the base's world ``position`` (x, y, z) and ``yaw``. Updates the
+        map and returns the window around the rover, flat, heights relative to the base, ``-inf`` unknown."""
         xy = np.array([position[0], position[1]], dtype=np.float64)
-        self.update(world, xy)
+        self.last_world = self.to_world(levelled, position, yaw)  # the onboard slope shield maps these too
+        self.update(self.last_world, xy)
         top = self.window(xy, yaw, float(position[2])).reshape(-1)
         top[np.isnan(top)] = -np.inf
         return top

@@ -1,8 +1,9 @@
 """Deployment figures: the onboard policy's per-call latency in the ONNX runtime (:mod:`diana_lab.deploy`).
 
 The policy is the shipped reference policy (``policy=pretrained``, the one issue 10's target names) with the
-sensor and encoding it was trained on; without it, an untrained PPO of the reference recipe
-(``conf/experiment/reference.yaml``: the same lidar, elevation map with the episode's memory and network;
+sensor and encoding it was trained on, behind the slope shield of ``+experiment=reference`` as it ships;
+without it, an untrained PPO of the reference recipe (``conf/experiment/reference.yaml``: the same lidar,
+elevation map with the episode's memory and network;
 latency does not depend on the weights). Either is exported by :func:`diana_lab.deploy.export.export_policy`
 to a temporary ``policy.onnx`` and loaded by :class:`diana_lab.deploy.Navigator` on one onnxruntime thread;
 the note says which it was.
@@ -41,9 +42,15 @@ def _reference_navigator(folder: Path) -> Any:
 
     if not (PRETRAINED_DIR / "model.zip").is_file():
         return None
-    cfg = compose([])
-    loaded = load_policy("pretrained", cfg, to_object("eval", cfg.eval))
+    from dataclasses import asdict
+
+    from diana_lab.slope_shield import ShieldSettings
+
+    cfg = compose(["+experiment=reference"])  # as it ships: behind the preset's slope shield
+    eval_cfg = to_object("eval", cfg.eval)
+    loaded = load_policy("pretrained", cfg, eval_cfg)
     train = loaded.train_cfg
+    shield = asdict(ShieldSettings.from_config(eval_cfg.shield, to_object("robot", train.robot)))
     path = folder / "policy.onnx"
     export_policy(
         loaded.model,
@@ -53,6 +60,7 @@ def _reference_navigator(folder: Path) -> Any:
         to_object("episode", train.episode),
         path,
         source={"label": "benchmark (shipped reference policy)"},
+        shield=shield if eval_cfg.shield.enabled else None,
     )
     return Navigator.from_files(path, threads=1)
 
@@ -98,7 +106,7 @@ def policy_latency(ctx: BenchContext) -> list[Figure]:
     calls = ctx.size(2000, 300)
     with tempfile.TemporaryDirectory(prefix="diana_bench_") as folder:
         nav = _reference_navigator(Path(folder))
-        which = "the shipped reference policy"
+        which = "the shipped reference policy" + (" behind its slope shield" if nav.shield is not None else "")
         if nav is None:
             nav = _recipe_navigator(ctx.seed, Path(folder))
             which = "an untrained PPO of the reference recipe (+experiment=reference; no policy shipped yet)"

@@ -16,7 +16,7 @@ DYNAMICS_OPTIONS = ("kinematic", "physics")
 
 @dataclass
 class ShieldConfig:
-    """The slope shield (:mod:`diana_lab.planning.shield`): before a learnt policy's candidate waypoint is
+    """The slope shield (:mod:`diana_lab.slope_shield`): before a learnt policy's candidate waypoint is
     driven, the rover's own fine height map checks the straight drive to it; among the policy's ``top_k``
     most probable candidates the first it does not see too steep is driven. Only for discrete action spaces."""
 

@@ -51,12 +51,22 @@ class CloudEncoder:
         self.sensor = SensorModel(sensor)
         self.encoding = encoding
         self.shape = tuple(encoding.shape)
+        self._last_visible: tuple[np.ndarray, np.ndarray] | None = None  # (cloud, its visible rover points)
 
     def visible_rover_points(self, points: np.ndarray) -> np.ndarray:
         """The points the trained sensor could see, in the rover frame, float32 and in their given order
-        (the simulated frame lists its returns row-major, and the ``points`` subsample depends on order)."""
+        (the simulated frame lists its returns row-major, and the ``points`` subsample depends on order).
+
+        The result for the latest cloud is kept: the slope shield asks again for the cloud the encoding
+        just used (the same array object, unchanged in between: a caller that edits a cloud in place must
+        pass a copy)."""
+        last = self._last_visible
+        if last is not None and last[0] is points:
+            return last[1]
         idx, _ = self.sensor.locate(points)
-        return self.sensor.to_rover(points.take(idx, axis=0)).astype(np.float32)
+        visible = self.sensor.to_rover(points.take(idx, axis=0)).astype(np.float32)
+        self._last_visible = (points, visible)
+        return visible
 
     def reset(self) -> None:
         """A new traverse: stateful encodings forget their map."""
@@ -101,6 +111,9 @@ class ElevationMap(CloudEncoder):
         if len(self.shape) != 3 or self.shape[0] != 2:
             raise ValueError(f"encoding.shape: expected (2, rows, cols) for elevation_map, got {self.shape}")
         self.rows, self.cols = self.shape[1], self.shape[2]
+        # the world points of the latest frame the memory fused, when they are every visible return of that frame
+        # (no voxel or outlier filter): the slope shield then maps them without levelling them again
+        self.fused_points: np.ndarray | None = None
         self.memory = (
             HeightMemory(
                 self.cell_size, float(p("memory_radius")), self.rows, self.cols, self.extent_forward, self.extent_side
@@ -129,8 +142,11 @@ class ElevationMap(CloudEncoder):
         if len(pts):
             pts = pts @ leveling_matrix((pose.roll, pose.pitch, 0.0)).T.astype(np.float32)
         pts = self._filter(pts)
+        self.fused_points = None
         if self.memory is not None:
             top = self.memory.fuse(pts, (pose.x, pose.y, pose.z), pose.yaw)
+            if self.voxel_size <= 0 and not self.outlier_removal:  # unfiltered: what the slope shield maps too
+                self.fused_points = self.memory.last_world
         else:
             inv = 1.0 / self.cell_size
             row = np.floor((self.extent_forward - pts[:, 0]) * inv).astype(np.int64)

@@ -15,11 +15,12 @@ get any of it subtly wrong:
    in float64 numpy.
 
 Inputs ``goal`` ``(B, 7)`` and the encoding ``(B, ...)`` (batch dynamic); outputs ``offset`` ``(B, 2)`` and
-``action``: ``(B, 2)``, or for a discrete policy the chosen candidate's index ``(B,)`` (int64). So the runtime,
-which reads only ``offset``, is the same for every action space. The exporter is torch's TorchScript-based
-one (``dynamo=False``): it works offline without onnxscript. It cannot export an adaptive average pool whose
-output does not divide its input (the paper's 112 x 112 camera), so every ``AdaptiveAvgPool2d`` is replaced
-by the same average written as two constant matrix products.
+``action``: ``(B, 2)``, or for a discrete policy the chosen candidate's index ``(B,)`` (int64) and its
+``logits`` ``(B, n)`` (the slope shield's ranking; the index is their argmax). So the runtime, which reads
+only ``offset`` unless the sidecar carries a ``shield``, is the same for every action space. The exporter is
+torch's TorchScript-based one (``dynamo=False``): it works offline without onnxscript. It cannot export an
+adaptive average pool whose output does not divide its input (the paper's 112 x 112 camera), so every
+``AdaptiveAvgPool2d`` is replaced by the same average written as two constant matrix products.
 
 Importing this module imports torch; :mod:`diana_lab.deploy` itself never does.
 """
@@ -42,11 +43,11 @@ from gymnasium import spaces
 from torch import nn
 
 import diana_lab
+from diana_lab.candidates import candidate_offsets
 from diana_lab.config import ConfigError
 from diana_lab.config.env import ActionSpaceConfig, EpisodeConfig
 from diana_lab.config.sensing import DepthCameraConfig, Lidar3dConfig, SensorConfig
 from diana_lab.deploy.spec import ActionSpec, EncodingSpec, PolicySpec, SensorSpec, sidecar_path
-from diana_lab.envs.action_spaces import candidate_offsets
 
 __all__ = ["ExportablePolicy", "expected_shape", "export_policy", "policy_spec"]
 
@@ -55,6 +56,7 @@ VERIFY_TOLERANCE = 1e-4  # metres: ONNX vs torch on random observations, checked
 # a discrete policy's argmax at logits closer than this may fall either way between torch and onnxruntime
 # (float rounding); such near-ties are left out of the export check
 LOGIT_TIE = 1e-4
+LOGIT_TOLERANCE = 1e-3  # a discrete graph's logits against torch's, relative beyond 1 (the shield ranks by them)
 
 
 # ---------------------------------------------------------------------------------------------- graph parts
@@ -185,8 +187,13 @@ class ExportablePolicy(nn.Module):
             local = torch.where(norm < d, unit * d, local)
         return local
 
-    def forward(self, goal: torch.Tensor, encoding: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        a = self.actor({"goal": goal, self.sensor_key: encoding})
+    def forward(self, goal: torch.Tensor, encoding: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        obs = {"goal": goal, self.sensor_key: encoding}
+        if self.discrete:  # the logits too (the slope shield ranks the candidates by them), from one pass
+            logits = self.logits(obs)
+            a = torch.argmax(logits, dim=-1)
+            return self.mapping(a), a, logits
+        a = self.actor(obs)
         return self.mapping(a), a
 
 
@@ -283,8 +290,10 @@ def policy_spec(
     normalization: dict[str, Any],
     source: dict[str, Any],
     opset: int,
+    shield: dict[str, Any] | None = None,
 ) -> PolicySpec:
-    """The sidecar of a model trained with these ``sensor``, ``action_space`` and ``episode`` groups."""
+    """The sidecar of a model trained with these ``sensor``, ``action_space`` and ``episode`` groups (and the
+    slope shield's settings, ``ShieldSettings`` as a dict, when the runtime is to drive behind it)."""
     enc = encoding_spec(sensor)
     goal_space = model.observation_space["goal"]
     return PolicySpec(
@@ -295,11 +304,16 @@ def policy_spec(
         goal_low=tuple(float(v) for v in np.asarray(goal_space.low, dtype=np.float32)),
         goal_high=tuple(float(v) for v in np.asarray(goal_space.high, dtype=np.float32)),
         inputs={"goal": [-1, 7], enc.name: [-1, *enc.shape]},
-        outputs={"offset": [-1, 2], "action": [-1] if action.shape == "discrete" else [-1, 2]},
+        outputs=(
+            {"offset": [-1, 2], "action": [-1], "logits": [-1, int(model.action_space.n)]}
+            if action.shape == "discrete"
+            else {"offset": [-1, 2], "action": [-1, 2]}
+        ),
         normalization=normalization,
         source=source,
         diana_lab_version=diana_lab.__version__,
         opset=opset,
+        shield=shield,
     )
 
 
@@ -393,14 +407,22 @@ def export_policy(
     output: str | Path,
     opset: int = DEFAULT_OPSET,
     source: dict[str, Any] | None = None,
+    shield: dict[str, Any] | None = None,
 ) -> PolicySpec:
-    """Write ``output`` (ONNX) and its sidecar; check the graph against torch on random observations."""
+    """Write ``output`` (ONNX) and its sidecar; check the graph against torch on random observations.
+    ``shield``: the slope shield's settings (``ShieldSettings`` as a dict) for the sidecar; a discrete policy
+    only (the runtime ranks its candidates by the graph's ``logits``)."""
     import onnx
     import onnxruntime as ort
 
     label = str((source or {}).get("label", "model"))
     key = _check_model(model, sensor, label)
     _check_action(model, action, label)
+    if shield is not None and action.shape != "discrete":
+        raise ConfigError(
+            f"policy {label}: eval.shield.enabled with action_space.shape={action.shape}: the slope shield ranks a "
+            "discrete policy's candidates; export with eval.shield.enabled=false"
+        )
     act = action_spec(action)
     norm, clip_obs = _normalization(vecnormalize, ("goal", key))
     policy = model.policy
@@ -414,24 +436,35 @@ def export_policy(
         )
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
+    outputs = ["offset", "action", "logits"] if graph.discrete else ["offset", "action"]
     with _quiet_export(), torch.no_grad():
         torch.onnx.export(
             graph,
             (torch.from_numpy(goal0), torch.from_numpy(enc0)),
             str(output),
             input_names=["goal", key],
-            output_names=["offset", "action"],
+            output_names=outputs,
             opset_version=opset,
             dynamo=False,
-            dynamic_axes={n: {0: "batch"} for n in ("goal", key, "offset", "action")},
+            dynamic_axes={n: {0: "batch"} for n in ("goal", key, *outputs)},
         )
     onnx.checker.check_model(str(output))
     goal, enc = _samples(model, key, 16, seed=1)
     with torch.no_grad():
-        want = reference(torch.from_numpy(goal), torch.from_numpy(enc))[0].numpy()
+        want = [t.numpy() for t in reference(torch.from_numpy(goal), torch.from_numpy(enc))]
     session = ort.InferenceSession(str(output), providers=["CPUExecutionProvider"])
-    got = session.run(["offset"], {"goal": goal, key: enc})[0]
-    err = float(np.max(np.abs(got - want)[_decisive(reference, goal, enc, key)], initial=0.0))
+    got = session.run(outputs, {"goal": goal, key: enc})
+    decisive = _decisive(reference, goal, enc, key)
+    err = float(np.max(np.abs(got[0] - want[0])[decisive], initial=0.0))
+    logit_err = 0.0
+    if graph.discrete:  # relative beyond 1: a planner head's logits reach ~1e6 (banned candidates)
+        logit_err = float(np.max(np.abs(got[2] - want[2]) / np.maximum(1.0, np.abs(want[2])), initial=0.0))
+    if not logit_err <= LOGIT_TOLERANCE:
+        output.unlink(missing_ok=True)
+        raise RuntimeError(
+            f"export: the ONNX graph's logits differ from the torch policy's by {logit_err:.2e} (relative) on random "
+            f"observations (tolerance {LOGIT_TOLERANCE}); nothing was written"
+        )
     if not err <= VERIFY_TOLERANCE:
         output.unlink(missing_ok=True)  # never leave a graph on disk that would drive differently
         raise RuntimeError(
@@ -445,8 +478,9 @@ def export_policy(
         "torch": torch.__version__,
         "exported_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "export_check_max_error_m": err,
+        **({"export_check_max_logit_error": logit_err} if graph.discrete else {}),
     }
-    spec = policy_spec(model, sensor, action, episode, normalization, src, opset)
+    spec = policy_spec(model, sensor, action, episode, normalization, src, opset, shield)
     spec.save(sidecar_path(output))
     return spec
 
@@ -485,6 +519,12 @@ def run(cfg: Any) -> PolicySpec:
         "run_id": loaded.run_id,
         "config": "training" if train_cfg is not None else "command line",
     }
+    shield = None
+    eval_cfg = to_object("eval", cfg.eval)
+    if eval_cfg.shield.enabled:  # the runtime drives behind the slope shield too, with the training robot's size
+        from diana_lab.slope_shield import ShieldSettings
+
+        shield = dataclasses.asdict(ShieldSettings.from_config(eval_cfg.shield, group("robot")))
     spec = export_policy(
         loaded.model,
         loaded.policy.vecnormalize,
@@ -494,6 +534,7 @@ def run(cfg: Any) -> PolicySpec:
         out,
         int(cfg.opset),
         source,
+        shield,
     )
     print(
         f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "

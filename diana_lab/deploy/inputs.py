@@ -32,6 +32,9 @@ class Pose:
     def of(cls, pose: Pose | Sequence[float] | np.ndarray) -> Pose:
         """A :class:`Pose` from itself or ``(x, y, z, roll, pitch, yaw)``; ``ValueError`` naming ``pose``."""
         if isinstance(pose, Pose):
+            fields = (pose.x, pose.y, pose.z, pose.roll, pose.pitch, pose.yaw)
+            if all(type(v) is float and math.isfinite(v) for v in fields):
+                return pose  # frozen, Python floats and finite: nothing to convert
             values = np.array([pose.x, pose.y, pose.z, pose.roll, pose.pitch, pose.yaw], dtype=np.float64)
         else:
             try:
@@ -75,8 +78,10 @@ def check_cloud(cloud: Any, drop_invalid: bool = False) -> np.ndarray:
         raise ValueError(f"cloud: expected an (N, 3) array of numbers, got {type(cloud).__name__}") from exc
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise ValueError(f"cloud: expected shape (N, 3) (x, y, z in the sensor frame), got {pts.shape}")
-    finite = np.isfinite(pts).all(axis=1)
-    if not finite.all():
+    # one reduction in the usual case: a NaN or inf anywhere makes the sum non-finite (so may an overflow of
+    # huge finite values: the per-point test below then decides)
+    finite = np.isfinite(pts).all(axis=1) if not np.isfinite(pts.sum()) else None
+    if finite is not None and not finite.all():
         if not drop_invalid:
             raise ValueError(
                 f"cloud: {int((~finite).sum())} of {len(pts)} points are NaN or infinite; pass "

@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from diana_lab.deploy.geometry import pitch_matrix
-from diana_lab.deploy.inputs import Pose
+from diana_lab.deploy.inputs import Pose, check_cloud, check_goal
 from diana_lab.deploy.navigator import Navigator
 from diana_lab.deploy.spec import SensorSpec
 
@@ -59,21 +59,24 @@ def measure_latency(
 
     Runs on one onnxruntime thread: a navigator built with more is re-opened with one. Returns ``p50``,
     ``p99`` and ``mean`` of the whole call, ``encode_p50`` (goal vector + sensor encoding) and
-    ``infer_p50`` (the ONNX session), and ``n``.
+    ``infer_p50`` (the ONNX session, and the slope shield when the sidecar asks for it), and ``n``.
     """
     if n <= 0:
         raise ValueError(f"n: expected a positive number of calls, got {n}")
     nav = navigator if navigator.threads == 1 else Navigator(navigator.spec, navigator.model_path, threads=1)
     pose = Pose(0.0, 0.0, 0.0, 0.02, -0.03, 0.3) if pose is None else Pose.of(pose)
     goal = np.array([12.0, -5.0]) if goal is None else goal
-    cloud = synthetic_cloud(nav.spec.sensor) if cloud is None else cloud
+    cloud = check_cloud(synthetic_cloud(nav.spec.sensor) if cloud is None else cloud)
     total = np.empty(n)
     encode = np.empty(n)
+    goal = check_goal(goal)
     for i in range(-warmup, n):
-        t0 = time.perf_counter()
-        obs = nav.observation(pose, goal, cloud)
+        frame = cloud.copy()  # a new cloud every call, as from a sensor (nothing cached from the last one)
+        t0 = time.perf_counter()  # Navigator.next_waypoint, step by step
+        p, pts = Pose.of(pose), check_cloud(frame)
+        obs = nav._observation(p, goal, pts)
         t1 = time.perf_counter()
-        nav.waypoint(pose, nav.offset(obs))
+        nav._waypoint(p, nav._decide(p, obs, pts))
         t2 = time.perf_counter()
         if i >= 0:
             total[i], encode[i] = t2 - t0, t1 - t0

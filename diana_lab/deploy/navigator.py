@@ -19,9 +19,11 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
+from diana_lab.candidates import candidate_offsets, turned
 from diana_lab.deploy.encoding import CloudEncoder, make_cloud_encoder
 from diana_lab.deploy.inputs import Pose, check_cloud, check_goal, goal_vector
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
+from diana_lab.slope_shield import ShieldSettings, SlopeShield
 
 __all__ = ["Navigator", "session_options"]
 
@@ -58,6 +60,12 @@ class Navigator:
         self._low = np.asarray(spec.goal_low, dtype=np.float32)
         self._high = np.asarray(spec.goal_high, dtype=np.float32)
         self._rotate = spec.action_space.frame == "rover"
+        self.shield: SlopeShield | None = None  # the slope shield, when the sidecar asks for it
+        if spec.shield is not None:
+            self.shield = SlopeShield(ShieldSettings.from_dict(spec.shield))
+            act = spec.action_space
+            self._candidates = candidate_offsets(int(act.headings), tuple(act.distances))  # type: ignore[arg-type]
+            self._candidates32 = self._candidates.astype(np.float32)  # the graph's own table (its offsets)
 
     @classmethod
     def from_files(
@@ -85,22 +93,24 @@ class Navigator:
         outputs = [o.name for o in self.session.get_outputs()]
         if "offset" not in outputs:
             raise ValueError(f"model '{self.model_path}': no 'offset' output (outputs: {outputs})")
+        if self.spec.shield is not None and "logits" not in outputs:
+            raise ValueError(
+                f"model '{self.model_path}': the sidecar asks for the slope shield, which needs the graph's 'logits' "
+                f"output (outputs: {outputs}); re-export the policy with this diana_lab version"
+            )
 
     def reset(self) -> None:
-        """Start a new traverse (a new goal): an ``elevation_map`` with memory forgets the last map. The
-        simulator resets it with every episode; a rover must call this whenever it takes a new goal."""
+        """Start a new traverse (a new goal): an ``elevation_map`` with memory (and the slope shield) forget
+        the last map. The simulator resets them with every episode; a rover must call this whenever it takes a
+        new goal."""
         self.encoder.reset()
+        if self.shield is not None:
+            self.shield.reset()
 
     # ------------------------------------------------------------------ steps (public for tests and tools)
     def observation(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> dict[str, np.ndarray]:
         """The policy's observation (unbatched), built as the env builds it."""
-        p = Pose.of(pose)
-        g = check_goal(goal)
-        pts = check_cloud(cloud, drop_invalid)
-        return {
-            "goal": goal_vector(p, g, self.spec.distance_scale, self._low, self._high),
-            self.sensor_key: self.encoder(pts, p),
-        }
+        return self._observation(Pose.of(pose), check_goal(goal), check_cloud(cloud, drop_invalid))
 
     def offset(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         """The waypoint offset in the action frame (float64, (2,)) for one unbatched observation."""
@@ -110,12 +120,12 @@ class Navigator:
 
     def waypoint(self, pose: PoseLike, offset: np.ndarray) -> np.ndarray:
         """World waypoint = position + offset (turned by the yaw when the action frame is the rover's)."""
-        p = Pose.of(pose)
-        local = np.asarray(offset, dtype=np.float64)
-        if self._rotate:
-            c, s = math.cos(p.yaw), math.sin(p.yaw)
-            local = np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
-        return p.xy + local
+        return self._waypoint(Pose.of(pose), offset)
+
+    def decide(self, pose: PoseLike, obs: dict[str, np.ndarray], points: Any) -> np.ndarray:
+        """The waypoint offset (action frame, float64) for an observation: the graph's, or behind the slope
+        shield the candidate it lets through, after mapping ``points`` (the sensor-frame cloud) into its map."""
+        return self._decide(Pose.of(pose), obs, check_cloud(points))
 
     # ------------------------------------------------------------------ the call a rover makes
     def next_waypoint(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> np.ndarray:
@@ -128,5 +138,43 @@ class Navigator:
                 optical-frame cloud with :func:`diana_lab.deploy.optical_to_body`).
             drop_invalid: ignore NaN/inf points instead of raising.
         """
-        p = Pose.of(pose)
-        return self.waypoint(p, self.offset(self.observation(p, goal, cloud, drop_invalid)))
+        p = Pose.of(pose)  # every input checked once; the steps below trust them
+        pts = check_cloud(cloud, drop_invalid)
+        return self._waypoint(p, self._decide(p, self._observation(p, check_goal(goal), pts), pts))
+
+    def _observation(self, p: Pose, goal: np.ndarray, pts: np.ndarray) -> dict[str, np.ndarray]:
+        return {
+            "goal": goal_vector(p, goal, self.spec.distance_scale, self._low, self._high),
+            self.sensor_key: self.encoder(pts, p),
+        }
+
+    def _waypoint(self, p: Pose, offset: np.ndarray) -> np.ndarray:
+        local = np.asarray(offset, dtype=np.float64)
+        if self._rotate:
+            c, s = math.cos(p.yaw), math.sin(p.yaw)
+            local = np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
+        return p.xy + local
+
+    def _decide(self, p: Pose, obs: dict[str, np.ndarray], pts: np.ndarray) -> np.ndarray:
+        if self.shield is None:
+            return self.offset(obs)
+        fused = getattr(self.encoder, "fused_points", None)  # the encoding's own world points, if the same
+        if fused is not None:
+            self.shield.observe(fused, p.xy)
+        else:
+            rpy = (p.roll, p.pitch, p.yaw)
+            self.shield.observe_rover(self.encoder.visible_rover_points(pts), (p.x, p.y, p.z), rpy)
+        ranked = self.ranking(obs)[: self.shield.cfg.top_k]
+        local = self._candidates[ranked]
+        j = self.shield.choose(np.arange(len(ranked)), turned(local, p.yaw) if self._rotate else local, p.xy)
+        return self._candidates32[ranked[j]].astype(np.float64)
+
+    def ranking(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """A discrete policy's candidates, its choice (the graph's ``action``) first, then by decreasing logit."""
+        feeds = {k: np.ascontiguousarray(obs[k], dtype=np.float32)[None] for k in self.spec.inputs}
+        action, logits = self.session.run(["action", "logits"], feeds)
+        first = int(action[0])
+        order = np.argsort(-logits[0], kind="stable")
+        if order[0] == first:  # the graph's argmax is the first largest logit: the usual case
+            return order
+        return np.concatenate([[first], order[order != first]]).astype(np.int64)

@@ -162,6 +162,8 @@ class PolicySpec:
     diana_lab_version: str = ""
     opset: int = 17
     format: str = FORMAT
+    # the slope shield the runtime drives behind (diana_lab.slope_shield.ShieldSettings as a dict); None: off
+    shield: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
         if len(self.goal_low) != len(GOAL_KEYS) or len(self.goal_high) != len(GOAL_KEYS):
@@ -170,6 +172,18 @@ class PolicySpec:
             raise ValueError(f"distance_scale: expected > 0, got {self.distance_scale}")
         if set(self.inputs) != {"goal", self.encoding.name}:
             raise ValueError(f"inputs: expected 'goal' and '{self.encoding.name}', got {sorted(self.inputs)}")
+        if self.shield is not None:
+            if self.action_space.shape != "discrete" or "logits" not in self.outputs:
+                raise ValueError(
+                    "shield: the slope shield ranks a discrete policy's candidates by the graph's 'logits' output; "
+                    f"this sidecar has action_space.shape={self.action_space.shape} and outputs {sorted(self.outputs)}"
+                )
+            from diana_lab.slope_shield import ShieldSettings
+
+            try:
+                ShieldSettings.from_dict(self.shield)
+            except TypeError as exc:
+                raise ValueError(f"shield: {exc}") from exc
 
     def to_json(self) -> str:
         node = asdict(self)

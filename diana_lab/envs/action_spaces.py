@@ -13,12 +13,12 @@ heading; ``frame=world`` keeps the map's axes, as the paper did.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 from gymnasium import spaces
 
+from diana_lab.candidates import candidate_offsets, turned
 from diana_lab.config.env import ActionSpaceConfig
 
 QUARTER_PI = math.pi / 4.0
@@ -63,17 +63,6 @@ def disc_to_square(p: np.ndarray) -> np.ndarray:
     return np.stack([x, y], axis=-1)
 
 
-def candidate_offsets(headings: int, distances: Sequence[float]) -> np.ndarray:
-    """The ``(headings * len(distances), 2)`` candidate offsets of a discrete action space, in the action frame.
-
-    Heading-major: row ``k`` lies at bearing ``2 pi (k // len(distances)) / headings`` (counter-clockwise from
-    +x, so the first is straight ahead in the rover frame) and distance ``distances[k % len(distances)]``.
-    """
-    bearings = 2.0 * np.pi * np.arange(headings) / headings
-    d = np.asarray(distances, dtype=np.float64)
-    return np.stack([np.cos(bearings)[:, None] * d, np.sin(bearings)[:, None] * d], axis=-1).reshape(-1, 2)
-
-
 class WaypointMapping:
     """Maps actions to waypoints (and back, for scripted policies and the deployment runtime)."""
 
@@ -107,8 +96,7 @@ class WaypointMapping:
         table = self.candidates
         if self.cfg.frame != "rover":
             return table.copy()
-        c, s = math.cos(yaw), math.sin(yaw)
-        return np.stack([c * table[:, 0] - s * table[:, 1], s * table[:, 0] + c * table[:, 1]], axis=-1)
+        return turned(table, yaw)
 
     def check(self, action: Any) -> Any:
         """Validate an action and return it as the mapping uses it, or raise :class:`ActionError`.

@@ -115,7 +115,7 @@ class SB3Policy:
 
 
 class ShieldedPolicy:
-    """A discrete learnt policy behind the slope shield (:mod:`diana_lab.planning.shield`): the first of its
+    """A discrete learnt policy behind the slope shield (:mod:`diana_lab.slope_shield`): the first of its
     ``top_k`` most probable candidates whose drive the rover's own fine height map does not call too steep.
 
     The shield's map is fed every sensor frame the env takes (``env.unwrapped.sensor.last_frame``): one per
@@ -136,23 +136,28 @@ class ShieldedPolicy:
     def name(self) -> str:
         return self.policy.name
 
+    @property
+    def vecnormalize(self) -> Any:
+        """The inner policy's observation statistics (what the exporter bakes into the graph)."""
+        return self.policy.vecnormalize
+
     @name.setter
     def name(self, value: str) -> None:
         self.policy.name = value
 
     def reset(self, env: gym.Env) -> None:
-        from diana_lab.planning.shield import SlopeShield
+        from diana_lab.slope_shield import ShieldSettings, SlopeShield
 
         self.policy.reset(env)
         if self.shield is None:
-            self.shield = SlopeShield(self.cfg, env.unwrapped.robot)
+            self.shield = SlopeShield(ShieldSettings.from_config(self.cfg, env.unwrapped.robot))
         self.shield.reset()
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
         base = env.unwrapped
         frame = base.sensor.last_frame
         if frame is not None:
-            self.shield.observe(frame.points_world(), frame.position[:2])
+            self.shield.observe_rover(frame.points, frame.position, frame.rpy)
         est = base.pose_estimate
         k = self.shield.choose(self.policy.ranking(obs), base.mapping.world_offsets(est.yaw), est.xy)
         return np.asarray(k, dtype=np.int64).reshape(())

@@ -38,14 +38,16 @@ class ExportedRun:
     onnx: Path
 
 
-def export_run(run_dir: Path, cfg, world, normalize: bool = True) -> ExportedRun:
-    """Save a tiny model of ``cfg`` as a run, export it through the CLI's task function, load it for torch."""
+def export_run(run_dir: Path, cfg, world, normalize: bool = True, *evaluation: str) -> ExportedRun:
+    """Save a tiny model of ``cfg`` as a run, export it through the CLI's task function, load it for torch;
+    ``evaluation``: ``eval.*`` overrides of both (e.g. the slope shield's)."""
     from diana_lab.export import main
 
     env = make_run(run_dir, cfg, world, normalize)
     onnx = run_dir / "export" / "policy.onnx"
-    main.task(compose([f"policy={run_dir}", f"output={onnx}"], config_name="export"))
-    return ExportedRun(env, load_policy(str(run_dir), cfg, EVAL), run_dir, onnx)
+    main.task(compose([f"policy={run_dir}", f"output={onnx}", *evaluation], config_name="export"))
+    eval_cfg = to_object("eval", compose(list(evaluation)).eval) if evaluation else EVAL
+    return ExportedRun(env, load_policy(str(run_dir), cfg, eval_cfg), run_dir, onnx)
 
 
 @pytest.fixture(scope="session")

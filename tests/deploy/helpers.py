@@ -93,7 +93,8 @@ def sensor_frame_points(env: RoverNavEnv, frame) -> np.ndarray:
 
 
 def record(env: RoverNavEnv, policy, n: int, seed: int = 0) -> Recording:
-    """Roll ``policy`` (an evaluation ``SB3Policy``) out for ``n`` steps, resetting after every episode."""
+    """Roll ``policy`` (an evaluation ``SB3Policy`` or ``ShieldedPolicy``) out for ``n`` steps, resetting after
+    every episode."""
     frames = []
     capture = env.sensor.capture
 
@@ -106,6 +107,7 @@ def record(env: RoverNavEnv, policy, n: int, seed: int = 0) -> Recording:
     try:
         rec = Recording([], [], [], [], np.empty((n, 2)), [])
         obs, _ = env.reset(seed=seed)
+        policy.reset(env)  # as the evaluation does every episode (a shielded policy forgets its map)
         start = True
         for i in range(n):
             rec.starts.append(start)
@@ -120,6 +122,7 @@ def record(env: RoverNavEnv, policy, n: int, seed: int = 0) -> Recording:
             start = terminated or truncated
             if start:
                 obs, _ = env.reset()
+                policy.reset(env)
         return rec
     finally:
         del env.sensor.capture

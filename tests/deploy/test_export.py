@@ -98,7 +98,8 @@ def test_a_discrete_policys_graph_gathers_the_argmax_candidate(discrete_run):
         "headings": 8,
         "distances": [1.5, 3.0],
     }
-    assert node["outputs"] == {"offset": [-1, 2], "action": [-1]}
+    assert node["outputs"] == {"offset": [-1, 2], "action": [-1], "logits": [-1, 16]}
+    assert node["shield"] is None and node["source"]["export_check_max_logit_error"] <= 1e-3
     spec = PolicySpec.load(sidecar_path(discrete_run.onnx))
     assert spec.action_space.distances == (1.5, 3.0) and spec.action_space.extent == 3.0
     assert PolicySpec.from_dict(json.loads(spec.to_json())) == spec
@@ -106,15 +107,20 @@ def test_a_discrete_policys_graph_gathers_the_argmax_candidate(discrete_run):
     rng = np.random.default_rng(0)
     goal = rng.uniform(-1, 1, (32, 7)).astype(np.float32)
     image = rng.uniform(0, 1, (32, 1, 48, 64)).astype(np.float32)
-    offset, action = session.run(["offset", "action"], {"goal": goal, "depth_image": image})
+    offset, action, logits = session.run(["offset", "action", "logits"], {"goal": goal, "depth_image": image})
     assert action.shape == (32,) and action.dtype == np.int64 and len(set(action.tolist())) > 1
+    np.testing.assert_array_equal(action, logits.argmax(axis=1))  # the choice is the logits' argmax
     mapping = discrete_run.env.mapping
     np.testing.assert_allclose(offset, mapping.candidates[action], atol=1e-6)
     # the graph's choice is the torch policy's deterministic action (model.predict, through VecNormalize)
     policy = discrete_run.loaded.policy
     for i in range(len(goal)):
-        want = policy.act({"goal": goal[i], "depth_image": image[i]}, discrete_run.env)
+        obs = {"goal": goal[i], "depth_image": image[i]}
+        want = policy.act(obs, discrete_run.env)
         assert want.dtype == np.int64 and want.shape == () and int(want) == action[i]
+        # and the graph ranks the candidates as torch does (what the slope shield walks through)
+        ranking = policy.ranking(obs)
+        np.testing.assert_array_equal(ranking[:8], np.argsort(-logits[i], kind="stable")[:8])
 
 
 def test_export_refuses_an_action_space_the_policy_was_not_trained_with(depth_run, discrete_run, tmp_path):
@@ -175,3 +181,22 @@ def test_a_cost_to_go_policy_exports_its_planner_and_picks_what_torch_picks(smal
             assert int(want) == action[i]
     finally:
         run.env.close()
+
+
+def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_whole_settings(discrete_run, depth_run):
+    from dataclasses import asdict
+
+    from diana_lab.config.evaluation import ShieldConfig
+    from diana_lab.slope_shield import ShieldSettings
+
+    settings = asdict(ShieldSettings.from_config(ShieldConfig(enabled=True), to_object("robot", "jackal")))
+    node = json.loads(sidecar_path(discrete_run.onnx).read_text())
+    assert PolicySpec.from_dict({**node, "shield": settings}).shield == settings
+    without_logits = {**node, "shield": settings, "outputs": {"offset": [-1, 2], "action": [-1]}}
+    with pytest.raises(ValueError, match=r"shield: .*'logits'"):
+        PolicySpec.from_dict(without_logits)
+    with pytest.raises(ValueError, match=r"shield: .*half_track"):
+        PolicySpec.from_dict({**node, "shield": {k: v for k, v in settings.items() if k != "half_track"}})
+    continuous = json.loads(sidecar_path(depth_run.onnx).read_text())
+    with pytest.raises(ValueError, match=r"shield: .*action_space.shape=square"):
+        PolicySpec.from_dict({**continuous, "shield": settings})

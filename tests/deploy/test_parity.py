@@ -119,3 +119,29 @@ def test_other_sensors_and_action_spaces_match_torch(name, tmp_path, small_world
     assert err["goal"] == 0.0
     assert err["encoding"] <= 1e-6
     assert err["waypoint"] <= TOLERANCE_M
+
+
+def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded_policy(tmp_path, small_world):
+    """The sidecar carries the shield; the runtime maps the cloud itself and walks the graph's logits: the same
+    waypoints as the simulator's ``ShieldedPolicy``, including where it vetoed the policy's choice."""
+    overrides = [
+        "sensor=lidar3d",
+        "sensor.encoding=elevation_map",
+        "sensor.elevation_map.memory=true",
+        "sensor.elevation_map.memory_radius=20",
+        "action_space=discrete",
+    ]
+    shield = ["eval.shield.enabled=true", "eval.shield.limit_deg=6", "eval.shield.radius=20"]  # strict: many vetoes
+    run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
+    try:
+        policy = run.loaded.policy
+        rec = record(run.env, policy, 150, seed=2)
+        nav = Navigator.from_files(run.onnx)
+        err = replay(nav, rec)
+    finally:
+        run.env.close()
+    print(f"shielded parity over 150 observations: {err}; simulator vetoes {policy.shield.vetoes}")
+    assert nav.spec.shield is not None and nav.spec.shield["limit_deg"] == 6.0
+    assert nav.shield.vetoes == policy.shield.vetoes > 10  # the shield changed course, the same times in both
+    assert err["encoding"] <= 1e-6
+    assert err["waypoint"] <= TOLERANCE_M

@@ -106,21 +106,23 @@ def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
 def test_the_exported_policy_drives_like_torch_on_1000_mars_yard_observations(tmp_path):
     from diana_lab.deploy import Navigator
     from diana_lab.export import main
-    from tests.deploy.helpers import EVAL, record
+    from tests.deploy.helpers import record
     from tests.deploy.test_parity import TOLERANCE_M, replay
 
     onnx = tmp_path / "policy.onnx"
     main.task(compose(["+experiment=reference", "policy=pretrained", f"output={onnx}"], config_name="export"))
     cfg = reference_cfg()
-    loaded = load_policy("pretrained", cfg, EVAL)
+    loaded = load_policy("pretrained", cfg, to_object("eval", cfg.eval))  # behind the preset's slope shield
     env = RoverNavEnv(config=env_config(cfg, None, loaded.train_cfg))
     try:
         rec = record(env, loaded.policy, 1000, seed=7)
     finally:
         env.close()
-    err = replay(Navigator.from_files(onnx), rec)
-    print(f"shipped policy parity over 1000 observations: {err}")
+    nav = Navigator.from_files(onnx)
+    err = replay(nav, rec)
+    print(f"shipped policy parity over 1000 observations: {err}; vetoes {nav.shield.vetoes}")
     assert err["waypoint"] <= TOLERANCE_M
+    assert nav.shield.vetoes == loaded.policy.shield.vetoes > 0  # the sidecar's shield drove it, as in the sim
     # not degenerate: the recording spans many episodes and the policy picks many candidates
     assert sum(rec.starts) >= 10
     assert len(np.unique(np.round(np.asarray(rec.waypoints) - np.asarray(rec.poses)[:, :2], 3), axis=0)) > 50

@@ -9,13 +9,13 @@ import pytest
 
 from diana_lab.config import ConfigError, to_object
 from diana_lab.config.evaluation import ShieldConfig
-from diana_lab.planning.shield import SlopeShield
+from diana_lab.slope_shield import ShieldSettings, SlopeShield
 
 ROBOT = to_object("robot", "jackal")  # wheelbase 0.262 m, track 0.376 m
 
 
 def shield(**overrides) -> SlopeShield:
-    return SlopeShield(ShieldConfig(enabled=True, **overrides), ROBOT)
+    return SlopeShield(ShieldSettings.from_config(ShieldConfig(enabled=True, **overrides), ROBOT))
 
 
 def ground(fn, half: float = 6.0, step: float = 0.05) -> np.ndarray:

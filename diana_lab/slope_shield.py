@@ -1,0 +1,172 @@
+"""A slope shield: the rover's own height map vetoes a candidate waypoint whose straight drive looks too steep.
+
+Why it exists: the reference policy (a CNN choosing one of 96 candidate waypoints from a 0.4 m elevation map)
+picks near-tied candidates, and some of them run into ground it could have seen was too steep. A check of the
+chosen drive on a finer map of the same returns, before it is driven, is what a rover's onboard safety layer
+would do ("shielding" a learnt policy). Measured with the v0.3 weights on 100-episode suites (the numbers in
+the README): +11 to +13 points of success on the Mars yard (two suite seeds) and in physics, +2 on unseen
+craters; the gain comes mostly from fewer stuck episodes, since the map rarely shows what the rover tips on.
+
+The rule (numpy only, so an onboard runtime can share it): along the straight segment from the rover to the
+candidate, every ``spacing`` metres, the map's heights under the front and rear axle centres (pitch over the
+wheelbase) and under the left and right tracks (roll across them); the drive is vetoed when any of those
+tilts exceeds ``limit_deg``. Ground the map has not seen passes (the policy already chose to drive there).
+Among the policy's ``top_k`` candidates, most probable first, the first allowed is driven; if none is, the
+policy's own choice is (a shield that only ever narrows the choice never leaves the rover without one).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from diana_lab.height_memory import HeightMemory
+from diana_lab.rotations import leveling_matrix
+
+if TYPE_CHECKING:  # numpy only at run time: the onboard runtime imports this module without Hydra
+    from diana_lab.config.evaluation import ShieldConfig
+    from diana_lab.config.sim import RobotConfig
+
+__all__ = ["ShieldSettings", "SlopeShield"]
+
+
+@dataclass
+class ShieldSettings:
+    """What the shield needs, as plain values (``eval.shield`` and the robot's geometry; the sidecar's
+    ``shield`` node onboard)."""
+
+    limit_deg: float
+    top_k: int
+    cell_size: float
+    spacing: float
+    radius: float
+    half_base: float  # half the distance between the outermost axles (m)
+    half_track: float  # half the track width (m)
+
+    @classmethod
+    def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
+        return cls(
+            float(cfg.limit_deg),
+            int(cfg.top_k),
+            float(cfg.cell_size),
+            float(cfg.spacing),
+            float(cfg.radius),
+            (max(robot.axle_x) - min(robot.axle_x)) / 2.0,
+            float(robot.track_width) / 2.0,
+        )
+
+    @classmethod
+    def from_dict(cls, node: dict[str, Any]) -> ShieldSettings:
+        return cls(**node)
+
+
+class SlopeShield:
+    """See the module docstring. ``observe`` every frame, ``choose`` per decision, ``reset`` per episode
+    (a new goal onboard)."""
+
+    def __init__(self, settings: ShieldSettings) -> None:
+        if not (0.0 < settings.limit_deg < 90.0 and settings.top_k >= 1 and settings.spacing > 0):
+            raise ValueError(f"SlopeShield: expected 0 < limit_deg < 90, top_k >= 1, spacing > 0, got {settings}")
+        if not (settings.half_base > 0 and settings.half_track > 0):
+            raise ValueError(f"SlopeShield: expected a positive wheelbase and track, got {settings}")
+        self.cfg = settings
+        self.memory = HeightMemory(settings.cell_size, settings.radius, 1, 1, 0.0, 0.0)
+        self._samples: dict[float, np.ndarray] = {}  # distances along a drive, per drive length
+        self.half_base, self.half_track = settings.half_base, settings.half_track
+        self.decisions = 0  # calls of choose() since construction
+        self.vetoes = 0  # of which drove another candidate than the policy's first
+
+    def reset(self) -> None:
+        """A new episode: forget the map (the counters keep running over the suite)."""
+        self.memory.reset()
+
+    def observe(self, points_world: np.ndarray, rover_xy: np.ndarray) -> None:
+        """Fuse one frame's returns, ``(N, 3)`` in the world frame; ``rover_xy`` centres the map on an
+        episode's first frame."""
+        self.memory.update(np.asarray(points_world, dtype=np.float32).reshape(-1, 3), rover_xy)
+
+    def observe_rover(self, points_rover: np.ndarray, position: Sequence[float], rpy: Sequence[float]) -> None:
+        """:meth:`observe` of returns in the rover frame, ``(N, 3)``, taken at world ``position`` and attitude
+        ``rpy``: levelled and placed as the ``elevation_map`` memory places them (simulator and onboard alike)."""
+        pts = np.asarray(points_rover, dtype=np.float32).reshape(-1, 3)
+        levelled = pts @ leveling_matrix(rpy).T.astype(np.float32)
+        self.observe(HeightMemory.to_world(levelled, position, float(rpy[2])), np.asarray(position)[:2])
+
+    def steepest_deg(self, start_xy: np.ndarray, offset: np.ndarray) -> float:
+        """The largest pitch or roll (degrees) the map shows along the straight drive from ``start_xy`` by
+        ``offset`` (world frame); 0 where it knows nothing of the way."""
+        return float(self.steepest_many(start_xy, np.asarray(offset, dtype=np.float64).reshape(1, 2))[0])
+
+    def steepest_many(self, start_xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """:meth:`steepest_deg` of every drive in ``offsets`` ``(K, 2)``, ``(K,)``: one map lookup for all of
+        them, so a decision costs the same whether the policy's first choice passes or its 16th."""
+        start = np.asarray(start_xy, dtype=np.float64)[:2]
+        offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
+        if len(offsets) == 1:  # the common call (the policy's own choice): fewer, smaller steps
+            return np.array([self._steepest_one(start, offsets[0])])
+        lengths = np.hypot(offsets[:, 0], offsets[:, 1])
+        moving = lengths >= 1e-9
+        # np.arange(0, length + 1e-9, spacing) per drive, all drives in one flat array
+        counts = np.where(moving, np.ceil((lengths + 1e-9) / self.cfg.spacing).astype(np.int64), 0)
+        owner = np.repeat(np.arange(len(offsets)), counts)
+        first = np.cumsum(counts) - counts
+        s = (np.arange(int(counts.sum())) - np.repeat(first, counts)) * self.cfg.spacing
+        u = offsets[owner] / np.where(moving, lengths, 1.0)[owner, None]
+        n = np.stack([-u[:, 1], u[:, 0]], axis=1)
+        centre = start + s[:, None] * u
+        along, across = self.half_base * u, self.half_track * n
+        probes = np.concatenate([centre + along, centre - along, centre + across, centre - across])
+        h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
+        front, rear, left, right = np.split(h, 4)
+        with np.errstate(invalid="ignore"):  # NaN (unknown) pairs count as level
+            tilt = np.fmax(
+                np.abs(front - rear) / (2.0 * self.half_base), np.abs(left - right) / (2.0 * self.half_track)
+            )
+        worst = np.zeros(len(offsets))
+        np.fmax.at(worst, owner, np.nan_to_num(tilt, nan=0.0))
+        return np.degrees(np.arctan(worst))
+
+    def _steepest_one(self, start: np.ndarray, offset: np.ndarray) -> float:
+        """:meth:`steepest_many` of one drive, with the same probes to the bit."""
+        length = float(np.hypot(offset[0], offset[1]))
+        if length < 1e-9:
+            return 0.0
+        s = self._samples.get(length)
+        if s is None:
+            s = self._samples[length] = np.arange(0.0, length + 1e-9, self.cfg.spacing)[:, None]
+        u = offset / length
+        centre = start + s * u
+        along, across = self.half_base * u, self.half_track * np.array([-u[1], u[0]])
+        probes = np.concatenate([centre + along, centre - along, centre + across, centre - across])
+        h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
+        front, rear, left, right = np.split(h, 4)
+        with np.errstate(invalid="ignore"):
+            tilt = np.fmax(
+                np.abs(front - rear) / (2.0 * self.half_base), np.abs(left - right) / (2.0 * self.half_track)
+            )
+        worst = np.fmax.reduce(tilt, initial=0.0)  # NaN (unknown) drops out; all unknown: 0
+        return float(np.degrees(np.arctan(worst)))
+
+    def allows(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
+        """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``)."""
+        return self.steepest_deg(start_xy, offset) <= self.cfg.limit_deg
+
+    def choose(self, ranked: Sequence[int], offsets: np.ndarray, start_xy: np.ndarray) -> int:
+        """The first of ``ranked`` (candidate indices, the policy's choice first) among its first ``top_k``
+        whose drive ``offsets[k]`` (world frame, ``(n, 2)``) is allowed; ``ranked[0]`` if none is."""
+        if len(ranked) == 0:
+            raise ValueError("SlopeShield.choose: expected at least one ranked candidate, got none")
+        self.decisions += 1
+        top = np.asarray(ranked, dtype=np.int64)[: self.cfg.top_k]
+        offsets = np.asarray(offsets)
+        # the policy's own choice first (it passes ~6 times in 7 on the Mars yard), then the rest in one lookup
+        if self.steepest_many(start_xy, offsets[top[:1]])[0] <= self.cfg.limit_deg:
+            return int(top[0])
+        allowed = np.flatnonzero(self.steepest_many(start_xy, offsets[top[1:]]) <= self.cfg.limit_deg)
+        if len(allowed) == 0:
+            return int(top[0])
+        self.vetoes += 1
+        return int(top[1 + allowed[0]])
