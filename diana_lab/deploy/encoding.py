@@ -63,7 +63,7 @@ class CloudEncoder:
         last = self._last_visible
         if last is not None and last[0] is points:
             return last[1]
-        idx, _ = self.sensor.locate(points)
+        idx, _ = self.sensor.locate(points, pixels=False)
         visible = self.sensor.to_rover(points.take(idx, axis=0)).astype(np.float32)
         self._last_visible = (points, visible)
         return visible

@@ -60,9 +60,10 @@ class SensorModel:
         """Sensor-frame points ``(N, 3)`` in the rover frame (float64): ``R_mount @ p + mount``."""
         return points @ self.mount_rotation.T + self.mount
 
-    def locate(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def locate(self, points: np.ndarray, pixels: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """``(index, pixel)``: the indices of the points the trained sensor could see and their flat pixel
-        index ``row * cols + col`` in its range image."""
+        index ``row * cols + col`` in its range image (``None`` with ``pixels=False``: a lidar then skips the
+        azimuth, which never hides a point from a 360-degree sensor)."""
         x, y, z = points[:, 0], points[:, 1], points[:, 2]
         r2 = x * x + y * y + z * z
         ok = (r2 >= self._r2_min) & (r2 <= self._r2_max)
@@ -75,14 +76,17 @@ class SensorModel:
         else:
             idx = np.flatnonzero(ok)
             xs, ys, zs = x[idx], y[idx], z[idx]
-            azimuth = np.arctan2(ys, xs)
-            col = np.floor((math.pi - azimuth) / self._az_step) % self.cols
             drop = self._el_top - np.arctan2(zs, np.hypot(xs, ys))  # angle below the top beam
             row = np.round(drop / self._el_step) if self.rows > 1 else np.zeros_like(drop)
             off_beam = np.abs(drop - row * self._el_step) > self._el_half
             row = np.where(off_beam, -1.0, row)
+            if not pixels:  # every azimuth is a column of a spinning lidar: only the beam decides
+                return idx.take(np.flatnonzero((row >= 0) & (row < self.rows))), None
+            col = np.floor((math.pi - np.arctan2(ys, xs)) / self._az_step) % self.cols
         inside = (row >= 0) & (row < self.rows) & (col >= 0) & (col < self.cols)
         keep = np.flatnonzero(inside)
+        if not pixels:
+            return idx.take(keep), None
         pixel = row.take(keep).astype(np.int64) * self.cols + col.take(keep).astype(np.int64)
         return idx.take(keep), pixel
 
