@@ -23,7 +23,8 @@ __all__ = ["SUMMARY_KEYS", "mean_ci", "ratio_ci", "spl", "summarize", "to_json",
 
 Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 
-# the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``
+# the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``; a policy
+# behind the slope shield adds ``shield_veto_rate`` (and its interval) after them
 SUMMARY_KEYS = (
     "episodes",
     "success_rate",
@@ -134,6 +135,10 @@ def summarize(df: pd.DataFrame) -> dict[str, Any]:
     mean("mean_waypoints", df["steps"].to_numpy())
     finite = speeds[np.isfinite(speeds)]
     out["min_speed_mps"] = float(finite.min()) if finite.size else math.nan
+    if "shield_vetoes" in df:  # behind the slope shield: the share of decisions (steps) it changed
+        vetoes, steps = int(df["shield_vetoes"].sum()), int(df["steps"].sum())
+        out["shield_veto_rate"] = vetoes / steps if steps else math.nan
+        out["shield_veto_rate_ci95"] = list(wilson(vetoes, steps))
     return {k: _plain(v) for k, v in out.items()}
 
 

@@ -131,6 +131,7 @@ class ShieldedPolicy:
             )
         self.policy, self.cfg = policy, cfg
         self.shield: Any = None  # built on the first reset, from the env's robot
+        self._vetoes_before = 0
 
     @property
     def name(self) -> str:
@@ -152,6 +153,12 @@ class ShieldedPolicy:
         if self.shield is None:
             self.shield = SlopeShield(ShieldSettings.from_config(self.cfg, env.unwrapped.robot))
         self.shield.reset()
+        self._vetoes_before = self.shield.vetoes
+
+    def episode_stats(self) -> dict[str, int]:
+        """The evaluation's extra columns for the episode just run: ``shield_vetoes``, the decisions the shield
+        changed (each step is one decision)."""
+        return {"shield_vetoes": self.shield.vetoes - self._vetoes_before}
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
         base = env.unwrapped

@@ -113,6 +113,9 @@ def _episode(
         "final_distance_m": float(info["distance_to_goal"]),
         "return": total,
     }
+    stats = getattr(policy, "episode_stats", None)  # a policy's own columns (the slope shield's vetoes)
+    if stats is not None:
+        row.update(stats())
     trace = EpisodeTrace(np.asarray(xy), np.asarray(tilt), np.asarray(wps).reshape(-1, 2))
     return row, trace
 
@@ -143,13 +146,15 @@ def run_episodes(
             row, trace = _episode(policy, env, spec, i)
         rows.append(row)
         traces.append(trace)
-    return pd.DataFrame(rows, columns=list(COLUMNS)), traces
+    extra = [k for k in (rows[0] if rows else {}) if k not in COLUMNS]  # a policy's own (``episode_stats``)
+    return pd.DataFrame(rows, columns=[*COLUMNS, *extra]), traces
 
 
 def run_suite(
     policy: Policy, env: gym.Env, suite: list[EpisodeSpec], video_path: Path | str | None = None
 ) -> pd.DataFrame:
-    """Run ``policy`` on every episode of ``suite``; one row per episode (columns: :data:`COLUMNS`).
+    """Run ``policy`` on every episode of ``suite``; one row per episode (columns: :data:`COLUMNS`, then any
+    the policy adds through an ``episode_stats()`` method, e.g. ``shield_vetoes``).
 
     ``video_path``: write a GIF of the first episode there. ``path_length_m`` is the driven length,
     ``shortest_path_m`` the planner's geodesic, ``speed_mps`` the goal-directed speed (straight start-goal

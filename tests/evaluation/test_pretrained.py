@@ -173,3 +173,36 @@ def test_without_the_shield_it_is_the_bare_policy_and_baselines_say_they_run_wit
     cfg = reference_cfg()
     loaded = load_policy("straight", cfg, to_object("eval", cfg.eval))
     assert "runs without it" in loaded.note and "eval.shield" in loaded.note
+
+
+def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_path):
+    """``shield_vetoes`` per episode in the rows, ``shield_veto_rate`` (vetoes per step, with its interval) in
+    the summary; both absent without the shield."""
+    from diana_lab.evaluation import evaluate
+
+    rates = {}
+    for enabled in (True, False):
+        cfg = reference_cfg("eval.episodes=3", "eval.video=false", "eval.plots=false", f"eval.shield.enabled={enabled}")
+        eval_cfg = to_object("eval", cfg.eval)
+        loaded = load_policy("pretrained", cfg, eval_cfg)
+        env = RoverNavEnv(config=env_config(cfg, None, loaded.train_cfg))
+        try:
+            summary = evaluate(loaded.policy, env, eval_cfg, tmp_path / str(enabled))
+        finally:
+            env.close()
+        rows = (tmp_path / str(enabled) / "episodes.csv").read_text().splitlines()
+        rates[enabled] = summary.get("shield_veto_rate")
+        if enabled:
+            vetoes = loaded.policy.shield.vetoes
+            assert "shield_vetoes" in rows[0]
+            assert summary["shield_veto_rate"] == pytest.approx(vetoes / sum_steps(rows))
+            lo, hi = summary["shield_veto_rate_ci95"]
+            assert lo <= summary["shield_veto_rate"] <= hi
+        else:
+            assert "shield_vetoes" not in rows[0] and "shield_veto_rate" not in summary
+    assert rates[True] is not None and rates[False] is None
+
+
+def sum_steps(rows: list[str]) -> int:
+    header = rows[0].split(",")
+    return sum(int(r.split(",")[header.index("steps")]) for r in rows[1:])
