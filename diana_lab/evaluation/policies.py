@@ -137,14 +137,14 @@ class ShieldedPolicy:
     def name(self) -> str:
         return self.policy.name
 
+    @name.setter
+    def name(self, value: str) -> None:
+        self.policy.name = value
+
     @property
     def vecnormalize(self) -> Any:
         """The inner policy's observation statistics (what the exporter bakes into the graph)."""
         return self.policy.vecnormalize
-
-    @name.setter
-    def name(self, value: str) -> None:
-        self.policy.name = value
 
     def reset(self, env: gym.Env) -> None:
         from diana_lab.slope_shield import ShieldSettings, SlopeShield
@@ -161,6 +161,8 @@ class ShieldedPolicy:
         return {"shield_vetoes": self.shield.vetoes - self._vetoes_before}
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
+        if self.shield is None:
+            raise RuntimeError("ShieldedPolicy.act: call reset(env) first (every episode), as the evaluation does")
         base = env.unwrapped
         frame = base.sensor.last_frame
         if frame is not None:
