@@ -116,17 +116,9 @@ class SlopeShield:
         s = (np.arange(int(counts.sum())) - np.repeat(first, counts)) * self.cfg.spacing
         u = offsets[owner] / np.where(moving, lengths, 1.0)[owner, None]
         n = np.stack([-u[:, 1], u[:, 0]], axis=1)
-        centre = start + s[:, None] * u
-        along, across = self.half_base * u, self.half_track * n
-        probes = np.concatenate([centre + along, centre - along, centre + across, centre - across])
-        h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
-        front, rear, left, right = np.split(h, 4)
-        with np.errstate(invalid="ignore"):  # NaN (unknown) pairs count as level
-            tilt = np.fmax(
-                np.abs(front - rear) / (2.0 * self.half_base), np.abs(left - right) / (2.0 * self.half_track)
-            )
+        tilt = self._sample_tilts(start + s[:, None] * u, u, n)
         worst = np.zeros(len(offsets))
-        np.fmax.at(worst, owner, np.nan_to_num(tilt, nan=0.0))
+        np.fmax.at(worst, owner, np.nan_to_num(tilt, nan=0.0))  # NaN (unknown) counts as level
         return np.degrees(np.arctan(worst))
 
     def _steepest_one(self, start: np.ndarray, offset: np.ndarray) -> float:
@@ -138,17 +130,22 @@ class SlopeShield:
         if s is None:
             s = self._samples[length] = np.arange(0.0, length + 1e-9, self.cfg.spacing)[:, None]
         u = offset / length
-        centre = start + s * u
-        along, across = self.half_base * u, self.half_track * np.array([-u[1], u[0]])
+        tilt = self._sample_tilts(start + s * u, u, np.array([-u[1], u[0]]))
+        worst = np.fmax.reduce(tilt, initial=0.0)  # NaN (unknown) drops out; all unknown: 0
+        return float(np.degrees(np.arctan(worst)))
+
+    def _sample_tilts(self, centre: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """At each sample ``centre`` ``(m, 2)`` of a drive along ``u`` (``n`` to its left): the larger of the
+        pitch over the wheelbase and the roll across the track the map shows, as a tangent; NaN where it
+        knows neither."""
+        along, across = self.half_base * u, self.half_track * n
         probes = np.concatenate([centre + along, centre - along, centre + across, centre - across])
         h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
         front, rear, left, right = np.split(h, 4)
         with np.errstate(invalid="ignore"):
-            tilt = np.fmax(
+            return np.fmax(
                 np.abs(front - rear) / (2.0 * self.half_base), np.abs(left - right) / (2.0 * self.half_track)
             )
-        worst = np.fmax.reduce(tilt, initial=0.0)  # NaN (unknown) drops out; all unknown: 0
-        return float(np.degrees(np.arctan(worst)))
 
     def allows(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
         """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``)."""

@@ -499,7 +499,8 @@ def run(cfg: Any) -> PolicySpec:
             "python -m diana_lab.export policy=outputs/run/model output=policy.onnx"
         )
     out = output_file(cfg.output)  # before loading: a path that cannot be written fails naming `output`
-    loaded = load_policy(str(cfg.policy), cfg, to_object("eval", cfg.eval))
+    eval_cfg = to_object("eval", cfg.eval)
+    loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
     if loaded.model is None:
         raise UserError(f"policy={cfg.policy}: a classical baseline, not a trained policy; nothing to export")
     train_cfg = loaded.train_cfg
@@ -520,7 +521,6 @@ def run(cfg: Any) -> PolicySpec:
         "config": "training" if train_cfg is not None else "command line",
     }
     shield = None
-    eval_cfg = to_object("eval", cfg.eval)
     if eval_cfg.shield.enabled:  # the runtime drives behind the slope shield too, with the training robot's size
         from diana_lab.slope_shield import ShieldSettings
 
