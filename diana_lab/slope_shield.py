@@ -13,6 +13,12 @@ wheelbase) and under the left and right tracks (roll across them); the drive is 
 tilts exceeds ``limit_deg``. Ground the map has not seen passes (the policy already chose to drive there).
 Among the policy's ``top_k`` candidates, most probable first, the first allowed is driven; if none is, the
 policy's own choice is (a shield that only ever narrows the choice never leaves the rover without one).
+
+Hazards felt (``hazard_radius`` > 0): where the wheels met ground they could not drive this episode (the
+rover's tilt guard tripped, or a slope too steep to climb held it; :attr:`WaypointResult.hazard_xy`, reported
+to :meth:`SlopeShield.mark_hazard`), a drive passing within ``hazard_radius`` is vetoed too. The map often
+misses what the rover tips on (features narrower than its cells, ground seen at grazing angles); the wheels
+do not, and a rover that backs off and tries the same ground again gains nothing.
 """
 
 from __future__ import annotations
@@ -45,6 +51,7 @@ class ShieldSettings:
     radius: float
     half_base: float  # half the distance between the outermost axles (m)
     half_track: float  # half the track width (m)
+    hazard_radius: float = 0.0  # m; 0: hazards felt are not used (sidecars written before the key: off)
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -56,6 +63,7 @@ class ShieldSettings:
             float(cfg.radius),
             (max(robot.axle_x) - min(robot.axle_x)) / 2.0,
             float(robot.track_width) / 2.0,
+            float(cfg.hazard_radius),
         )
 
     @classmethod
@@ -72,16 +80,44 @@ class SlopeShield:
             raise ValueError(f"SlopeShield: expected 0 < limit_deg < 90, top_k >= 1, spacing > 0, got {settings}")
         if not (settings.half_base > 0 and settings.half_track > 0):
             raise ValueError(f"SlopeShield: expected a positive wheelbase and track, got {settings}")
+        if not settings.hazard_radius >= 0:
+            raise ValueError(f"SlopeShield: expected hazard_radius >= 0, got {settings.hazard_radius}")
         self.cfg = settings
         self.memory = HeightMemory(settings.cell_size, settings.radius, 1, 1, 0.0, 0.0)
         self._samples: dict[float, np.ndarray] = {}  # distances along a drive, per drive length
         self.half_base, self.half_track = settings.half_base, settings.half_track
         self.decisions = 0  # calls of choose() since construction
         self.vetoes = 0  # of which drove another candidate than the policy's first
+        self.hazards = np.zeros((0, 2))  # this episode's hazards felt (world xy)
 
     def reset(self) -> None:
-        """A new episode: forget the map (the counters keep running over the suite)."""
+        """A new episode: forget the map and the hazards (the counters keep running over the suite)."""
         self.memory.reset()
+        self.hazards = np.zeros((0, 2))
+
+    def mark_hazard(self, xy: Sequence[float] | None) -> None:
+        """Remember where the wheels met ground they could not drive (``None``: nothing to remember); kept only
+        with ``hazard_radius`` > 0."""
+        if xy is not None and self.cfg.hazard_radius > 0:
+            point = np.asarray(xy, dtype=np.float64).reshape(1, 2)
+            self.hazards = np.concatenate([self.hazards, point])
+
+    def near_hazard(self, start_xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Whether each drive in ``offsets`` ``(K, 2)`` passes within ``hazard_radius`` of a hazard felt, ``(K,)``
+        bool: checked every ``spacing`` metres from the first step on. A rover already that close (a slope held
+        it just short of the spot) may drive anywhere that does not take it closer."""
+        offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
+        if len(self.hazards) == 0 or len(offsets) == 0:
+            return np.zeros(len(offsets), dtype=bool)
+        start = np.asarray(start_xy, dtype=np.float64)[:2]
+        lengths = np.hypot(offsets[:, 0], offsets[:, 1])
+        steps = int(np.ceil(lengths.max() / self.cfg.spacing + 1e-9))
+        frac = np.minimum(np.arange(1, steps + 1) * self.cfg.spacing / np.maximum(lengths, 1e-12)[:, None], 1.0)
+        points = start + frac[..., None] * offsets[:, None, :]  # (K, steps, 2), the drive's end repeated
+        gap = points[:, :, None, :] - self.hazards[None, None]
+        closest = np.hypot(gap[..., 0], gap[..., 1]).min(axis=1)  # (K, hazards)
+        reach = np.minimum(np.hypot(*(start - self.hazards).T), self.cfg.hazard_radius)
+        return (closest < reach).any(axis=1) & (lengths >= 1e-9)
 
     def observe(self, points_world: np.ndarray, rover_xy: np.ndarray) -> None:
         """Fuse one frame's returns, ``(N, 3)`` in the world frame; ``rover_xy`` centres the map on an
@@ -148,8 +184,8 @@ class SlopeShield:
             )
 
     def allows(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
-        """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``)."""
-        return self.steepest_deg(start_xy, offset) <= self.cfg.limit_deg
+        """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``, and not near a hazard felt)."""
+        return self.steepest_deg(start_xy, offset) <= self.cfg.limit_deg and not self.near_hazard(start_xy, offset)[0]
 
     def choose(self, ranked: Sequence[int], offsets: np.ndarray, start_xy: np.ndarray) -> int:
         """The first of ``ranked`` (candidate indices, the policy's choice first) among its first ``top_k``
@@ -160,9 +196,12 @@ class SlopeShield:
         top = np.asarray(ranked, dtype=np.int64)[: self.cfg.top_k]
         offsets = np.asarray(offsets)
         # the policy's own choice first (it passes ~6 times in 7 on the Mars yard), then the rest in one lookup
-        if self.steepest_many(start_xy, offsets[top[:1]])[0] <= self.cfg.limit_deg:
+        first = offsets[top[:1]]
+        if self.steepest_many(start_xy, first)[0] <= self.cfg.limit_deg and not self.near_hazard(start_xy, first)[0]:
             return int(top[0])
-        allowed = np.flatnonzero(self.steepest_many(start_xy, offsets[top[1:]]) <= self.cfg.limit_deg)
+        rest = offsets[top[1:]]
+        ok = (self.steepest_many(start_xy, rest) <= self.cfg.limit_deg) & ~self.near_hazard(start_xy, rest)
+        allowed = np.flatnonzero(ok)
         if len(allowed) == 0:
             return int(top[0])
         self.vetoes += 1

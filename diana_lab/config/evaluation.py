@@ -26,8 +26,12 @@ class ShieldConfig:
     top_k: int = 16  # candidates tried, most probable first; if all are vetoed the policy's own choice is driven
     spacing: float = 0.2  # m between the checks along the drive
     radius: float = 64.0  # m: half-width of the square the map covers around the episode's first pose
+    # m: also veto a drive passing this close to where the wheels met ground they could not drive this episode
+    # (the rover's tilt guard tripped, robot.tilt_guard_deg, or a slope held it: ``hazard_xy``); 0: off
+    hazard_radius: float = 0.0
 
     def __post_init__(self) -> None:
+        non_negative("eval.shield.hazard_radius", self.hazard_radius)
         positive("eval.shield.cell_size", self.cell_size)
         positive("eval.shield.spacing", self.spacing)
         positive("eval.shield.radius", self.radius)

@@ -134,6 +134,11 @@ class RobotConfig:
     max_slope_deg: float = 25.0  # steepest climbable slope
     tipover_deg: float = 40.0  # roll or pitch beyond this is a tip-over
     base_height: float = 0.1  # base link origin above the ground plane when standing on flat ground
+    # tilt fault protection (None: off): a drive halts where the rover's measured tilt first passes this, and
+    # the rover backs ``guard_retreat`` metres along its own track (never past the drive's start); the
+    # waypoint ends as ``halted``, and where the tilt passed the limit is reported (``hazard_xy``)
+    tilt_guard_deg: float | None = None
+    guard_retreat: float = 1.2
 
     def __post_init__(self) -> None:
         for key in (
@@ -155,6 +160,12 @@ class RobotConfig:
         in_range("robot.cruise_speed", self.cruise_speed, 0.01, 3.0)
         in_range("robot.tipover_deg", self.tipover_deg, 1.0, 89.0)
         in_range("robot.max_slope_deg", self.max_slope_deg, 1.0, 89.0)
+        if self.tilt_guard_deg is not None and not 0.0 < self.tilt_guard_deg < self.tipover_deg:
+            raise ConfigError(
+                f"robot.tilt_guard_deg: expected null (off) or an angle in (0, robot.tipover_deg = "
+                f"{self.tipover_deg}) degrees, got {self.tilt_guard_deg}"
+            )
+        non_negative("robot.guard_retreat", self.guard_retreat)
         if not self.wheel_joints_left or not self.wheel_joints_right:
             raise ConfigError("robot.wheel_joints_left / wheel_joints_right: expected at least one joint per side")
         if len(self.axle_x) < 2:

@@ -107,6 +107,20 @@ class Navigator:
         if self.shield is not None:
             self.shield.reset()
 
+    def report_hazard(self, xy: Any) -> None:
+        """Tell the slope shield where the wheels met ground they could not drive (world ``(x, y)``): where the
+        rover's tilt fault protection stopped a drive, or a slope held it. Later waypoints keep the sidecar's
+        ``shield.hazard_radius`` away from it until :meth:`reset` (the simulator does the same with the
+        dynamics' ``hazard_xy``). Without the shield, or with ``hazard_radius`` 0, nothing is kept."""
+        try:
+            point = np.asarray(xy, dtype=np.float64).reshape(-1)
+        except (TypeError, ValueError):
+            point = np.zeros(0)
+        if point.shape != (2,) or not np.all(np.isfinite(point)):
+            raise ValueError(f"report_hazard: expected a finite world (x, y), got {xy!r}")
+        if self.shield is not None:
+            self.shield.mark_hazard(point)
+
     # ------------------------------------------------------------------ steps (public for tests and tools)
     def observation(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> dict[str, np.ndarray]:
         """The policy's observation (unbatched), built as the env builds it."""

@@ -107,6 +107,7 @@ class RoverNavEnv(gym.Env):
         )
         self.action_space = self.mapping.space  # Box(-1, 1, (2,)), or Discrete(n) over the candidate waypoints
         self._episode: Episode | None = None
+        self.last_waypoint: WaypointResult | None = None
         # per-env constants of the step path (looked up once: the step runs ~1,000 times a second)
         self._goal_low = goal_low.astype(np.float64)
         self._goal_high = goal_high.astype(np.float64)
@@ -174,6 +175,8 @@ class RoverNavEnv(gym.Env):
         self.sensor.reset(self.np_random)
         self.dynamics.reset(ep.start, ep.yaw, self.np_random)
         self._steps, self._path_length, self._max_tilt, self._time_over_tilt = 0, 0.0, 0.0, 0.0
+        self._halts = 0
+        self.last_waypoint = None  # what the controller reported for the last step (hazards felt: the shield)
         self._recent_xy = [self.dynamics.state.xy.copy()]
         self._trail = [self.dynamics.state.xy[None].copy()]  # (K, 2) pieces, joined by the trail property
         obs = self._observe()
@@ -189,6 +192,8 @@ class RoverNavEnv(gym.Env):
         result = self.dynamics.execute(waypoint, self.controller, self.pose_service.xy_yaw)
         self._steps += 1
         self._path_length += result.path_length
+        self._halts += result.outcome == "halted"
+        self.last_waypoint = result
         max_tilt = result.max_tilt_deg
         self._max_tilt = max(self._max_tilt, max_tilt)
         if max_tilt > TILT_LIMIT_DEG:
@@ -245,6 +250,7 @@ class RoverNavEnv(gym.Env):
             "pitch_deg": math.degrees(st.rpy[1]),
             "max_tilt_deg": max(self._max_tilt, tilt),
             "time_over_15deg_s": self._time_over_tilt,
+            "halts": self._halts,  # waypoints the tilt guard (robot.tilt_guard_deg) halted this episode
             "reward_terms": terms,
         }
         if result is not None:
@@ -252,6 +258,7 @@ class RoverNavEnv(gym.Env):
                 waypoint=waypoint,
                 waypoint_outcome=result.outcome,
                 waypoint_reached=result.reached,
+                hazard_xy=result.hazard_xy,
                 trace_xy=result.trace_xy,
                 trace_tilt_deg=result.trace_tilt_deg,
             )

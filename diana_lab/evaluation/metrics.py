@@ -139,6 +139,10 @@ def summarize(df: pd.DataFrame) -> dict[str, Any]:
         vetoes, steps = int(df["shield_vetoes"].sum()), int(df["steps"].sum())
         out["shield_veto_rate"] = vetoes / steps if steps else math.nan
         out["shield_veto_rate_ci95"] = list(wilson(vetoes, steps))
+    if "halts" in df:  # with the rover's tilt guard: the share of waypoints it halted
+        halts, steps = int(df["halts"].sum()), int(df["steps"].sum())
+        out["halt_rate"] = halts / steps if steps else math.nan
+        out["halt_rate_ci95"] = list(wilson(halts, steps))
     return {k: _plain(v) for k, v in out.items()}
 
 

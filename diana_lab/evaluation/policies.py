@@ -167,6 +167,9 @@ class ShieldedPolicy:
         frame = base.sensor.last_frame
         if frame is not None:
             self.shield.observe_rover(frame.points, frame.position, frame.rpy)
+        last = getattr(base, "last_waypoint", None)
+        if last is not None:  # where the wheels met ground they could not drive (the tilt guard, a slope)
+            self.shield.mark_hazard(last.hazard_xy)
         est = base.pose_estimate
         k = self.shield.choose(self.policy.ranking(obs), base.mapping.world_offsets(est.yaw), est.xy)
         return np.asarray(k, dtype=np.int64).reshape(())

@@ -113,6 +113,8 @@ def _episode(
         "final_distance_m": float(info["distance_to_goal"]),
         "return": total,
     }
+    if base.robot.tilt_guard_deg is not None:  # the rover's tilt guard: how many waypoints it halted
+        row["halts"] = int(info["halts"])
     stats = getattr(policy, "episode_stats", None)  # a policy's own columns (the slope shield's vetoes)
     if stats is not None:
         row.update(stats())

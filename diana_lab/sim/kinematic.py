@@ -8,7 +8,12 @@ samples). The first sample that violates a limit ends the waypoint:
 * ``tipover``: tilt above ``robot.tipover_deg``;
 * ``stuck``: nose-up pitch above ``robot.max_slope_deg`` (the wheels cannot climb it);
 * ``collision``: an obstacle taller than ``robot.ground_clearance`` within ``robot.radius`` of the centre;
-* ``out_of_bounds``: the centre leaves the terrain.
+* ``out_of_bounds``: the centre leaves the terrain;
+* ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passes the guard
+  (below the tip-over limit). The rover stops at the sample before and backs ``robot.guard_retreat`` metres
+  along its own track; the trace holds the drive out and back.
+
+``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``).
 
 PyBullet is used only for rendering, through the same scene as the physics mode, built lazily.
 """
@@ -28,7 +33,9 @@ from diana_lab.sim.world import World
 
 PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
 TURN_SAMPLE_RAD = math.radians(15.0)
-FAILURE_CHECKS = ("out_of_bounds", "tipover", "stuck", "collision")  # on one sample, the first listed wins
+# on one sample, the first listed wins. ``halted`` comes before the rest: the tilt is continuous along the path,
+# so a guard watching it (a rover's IMU, many times a sample) trips where it crosses the guard, short of the sample
+FAILURE_CHECKS = ("out_of_bounds", "halted", "tipover", "stuck", "collision")
 
 
 class KinematicDynamics:
@@ -147,20 +154,35 @@ class KinematicDynamics:
         # order is the earliest failing sample and, on a tie, the failure listed first
         failed = np.empty((len(xs), len(FAILURE_CHECKS)), dtype=bool)
         np.logical_not(self.world.terrain.contains(xs, ys), out=failed[:, 0])
-        np.greater(tilt, robot.tipover_deg, out=failed[:, 1])
-        np.less(rp[:, 1], -self._max_slope_rad, out=failed[:, 2])  # nose-up pitch above the limit
+        np.greater(tilt, robot.tipover_deg, out=failed[:, 2])
+        np.less(rp[:, 1], -self._max_slope_rad, out=failed[:, 3])  # nose-up pitch above the limit
         if self._collision_clearance is None:
-            failed[:, 3] = False
+            failed[:, 4] = False
         else:
-            np.less(self._clearance_at(xs, ys), robot.radius, out=failed[:, 3])
+            np.less(self._clearance_at(xs, ys), robot.radius, out=failed[:, 4])
+        if robot.tilt_guard_deg is None:
+            failed[:, 1] = False
+        else:
+            np.greater(tilt, robot.tilt_guard_deg, out=failed[:, 1])
         failed[0] = False  # the starting sample was checked when the rover got there
         flat = int(failed.argmax())
         first, check = divmod(flat, len(FAILURE_CHECKS))
         outcome = FAILURE_CHECKS[check] if failed[first, check] else "reached"
         end = first if outcome != "reached" else len(xs) - 1
-        if outcome == "stuck":
-            end = max(first - 1, 0)  # wheels spin at the foot of the slope: the rover stays where it was
-        keep = slice(0, end + 1)
+        if outcome in ("stuck", "halted"):
+            end = max(first - 1, 0)  # wheels spin at the foot of the slope / the guard stops the rover before it
+        keep = np.arange(end + 1)
+        trace_t = times[: end + 1].copy()
+        length = float(drive_s[end - m]) if end >= m else 0.0  # turning in place covers no distance
+        if outcome == "halted" and end >= m:  # back along the drive to guard_retreat metres before the stop
+            along = np.concatenate([[0.0], drive_s[: end - m + 1]])  # samples m - 1 (the drive's start) .. end
+            # the nearest sample at least guard_retreat back, or the drive's start
+            stop = m - 1 + max(int(np.searchsorted(along, along[-1] - robot.guard_retreat, side="right")) - 1, 0)
+            back = np.arange(end - 1, stop - 1, -1)
+            keep = np.concatenate([keep, back])
+            trace_t = np.concatenate([trace_t, 2.0 * times[end] - times[back]])  # drive times are linear in s
+            length += length - (float(drive_s[stop - m]) if stop >= m else 0.0)
+            end = stop
         self._set_state(
             float(xs[end]),
             float(ys[end]),
@@ -168,15 +190,15 @@ class KinematicDynamics:
             float(z[end]),
             float(rp[end, 0]),
             float(rp[end, 1]),
-            self._state.time + float(times[end]),
+            self._state.time + float(trace_t[-1]),
         )
-        trace_t = times[keep].copy()
         if outcome == "stuck":  # the wheels spin until the controller's stuck window runs out
             trace_t[-1] += self.cfg.stuck_window_s
             self._state.time += self.cfg.stuck_window_s
-        length = float(drive_s[end - m]) if end >= m else 0.0  # turning in place covers no distance
         result = self._finish(outcome, float(trace_t[-1]), xy[keep], tilt[keep], rp[keep], length)
         result.trace_t = trace_t
+        if outcome == "stuck" or (outcome == "halted" and first >= m):  # not for a halt while turning in place
+            result.hazard_xy = xy[first].copy()
         return result
 
     def _finish(

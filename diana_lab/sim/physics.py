@@ -12,6 +12,10 @@ except contacts with obstacles, which are checked every physics step while an ob
 * ``stuck``: less than ``cfg.stuck_distance`` of progress (translation plus the wheel arc of any rotation)
   within ``cfg.stuck_window_s`` while the controller commands motion;
 * ``out_of_bounds``: the rover's centre leaves the terrain;
+* ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passed the guard
+  (below the tip-over limit); the rover stopped there and backed ``robot.guard_retreat`` metres (never past
+  where the drive began) before the waypoint ended. ``hazard_xy`` is where the guard tripped (None if it
+  tripped while turning in place); a ``stuck`` while driving forward reports half a rover length ahead;
 * ``sim_error``: a non-finite or absurd state (speed above 20 m/s, spin above 50 rad/s, fallen through the
   terrain) or a PyBullet error. ``state`` then stays at the last sane pose (finite observations and reward for
   the episode's last step), and the next ``reset`` rebuilds the PyBullet client, since a NaN body can leave
@@ -244,15 +248,30 @@ class PhysicsDynamics:
         anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, st.yaw, 0.0  # last pose that counted as progress
         arm = 0.5 * self.robot.track_width  # rotation progress: the arc the wheels travel
         elapsed, length, outcome, detail = 0.0, 0.0, None, ""
+        guard, yaw = self.robot.tilt_guard_deg, st.yaw
+        drive_from: tuple[float, float] | None = None  # where the straight drive began
+        retreat: tuple[float, float, float] | None = None  # the guard's stop (x, y) and how far to back off
+        hazard: np.ndarray | None = None
+        phase, trip = "turn", ""
         while True:
-            cmd = controller.command(est_xy, est_yaw, waypoint)
-            if cmd.phase == "done":
-                outcome = "reached"
+            if retreat is None:
+                cmd = controller.command(est_xy, est_yaw, waypoint)
+                phase, linear, angular = cmd.phase, cmd.linear, cmd.angular
+                if phase == "done":
+                    outcome = "reached"
+                    break
+                if phase == "drive" and drive_from is None:
+                    drive_from = (x, y)
+            elif math.hypot(x - retreat[0], y - retreat[1]) >= retreat[2]:
+                outcome, detail = "halted", trip
                 break
+            else:
+                linear, angular = -self.robot.cruise_speed, 0.0
             if elapsed >= limit:
-                outcome, detail = "gave_up", f"time limit {limit:.1f} s"
+                outcome = "halted" if retreat else "gave_up"
+                detail = f"time limit {limit:.1f} s" + (f" while backing off ({trip})" if retreat else "")
                 break
-            self._drive(cmd.linear, cmd.angular)
+            self._drive(linear, angular)
             try:
                 hit = self._step_tick(x, y)
                 pos, orn = self._scene.base_pose()
@@ -277,11 +296,24 @@ class PhysicsDynamics:
             pitches.append(rpy[1])
             if outcome is not None:
                 break
+            tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(rpy[0]) * math.cos(rpy[1])))))
+            if guard is not None and retreat is None and tilt > guard:
+                trip = f"tilt guard: {tilt:.1f} deg at ({x:.2f}, {y:.2f})"
+                if phase != "drive" or drive_from is None:  # turning in place: stop where it stands
+                    outcome, detail = "halted", trip
+                    break
+                hazard = np.array([x, y])
+                retreat = (x, y, min(self.robot.guard_retreat, math.hypot(x - drive_from[0], y - drive_from[1])))
+                anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, yaw, elapsed  # backing off is progress
+                continue
             progress = math.hypot(x - anchor_x, y - anchor_y) + abs(wrap_angle(yaw - anchor_yaw)) * arm
             if progress >= cfg.stuck_distance:
                 anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, yaw, elapsed
             elif elapsed - anchor_t >= cfg.stuck_window_s:
                 outcome, detail = "stuck", f"moved {progress:.2f} m in {elapsed - anchor_t:.1f} s"
+                if retreat is None and phase == "drive":  # the ground ahead held it
+                    ahead = 0.5 * self.robot.length
+                    hazard = np.array([x + ahead * math.cos(yaw), y + ahead * math.sin(yaw)])
                 break
             if pose_estimate:
                 est_xy, est_yaw = pose_estimate(
@@ -300,6 +332,7 @@ class PhysicsDynamics:
             np.asarray(tilt_deg(rp[:, 0], rp[:, 1]), dtype=float),
             rp,
             detail,
+            hazard_xy=hazard,
         )
 
     def _wrecked(self, position: tuple[float, ...], rpy: tuple[float, ...]) -> None:

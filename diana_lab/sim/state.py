@@ -8,7 +8,7 @@ from typing import Literal
 
 import numpy as np
 
-Outcome = Literal["reached", "gave_up", "collision", "tipover", "stuck", "out_of_bounds", "sim_error"]
+Outcome = Literal["reached", "gave_up", "collision", "tipover", "stuck", "out_of_bounds", "sim_error", "halted"]
 FAILURES: tuple[str, ...] = ("collision", "tipover", "stuck", "out_of_bounds", "sim_error")
 
 
@@ -72,6 +72,9 @@ class WaypointResult:
     trace_rp: np.ndarray  # (K, 2) roll, pitch in radians
     detail: str = ""  # human-readable reason, e.g. which body was hit
     trace_t: np.ndarray | None = None  # (K,) seconds since the waypoint started; None: evenly spaced
+    # where the wheels met ground they could not drive (xy): the tilt guard's halt (``halted``) or a slope too
+    # steep to climb (``stuck``); None otherwise. Proprioception: what a rover's IMU and odometry report
+    hazard_xy: np.ndarray | None = None
 
     @property
     def reached(self) -> bool:

@@ -76,7 +76,9 @@ def make_run(run_dir: Path, cfg, world: World | None = None, normalize: bool = T
 class Recording:
     """Per step: the pose estimate (x, y, z, roll, pitch, yaw), the goal, the sensor-frame cloud, the env's
     observation and the torch policy's waypoint (pose + ``WaypointMapping.offset``, before the map clamp);
-    ``starts`` marks the first step of every episode (where a runtime with a map must reset it)."""
+    ``starts`` marks the first step of every episode (where a runtime with a map must reset it); ``hazards``
+    where the last waypoint's wheels met ground they could not drive (``hazard_xy``, reported to the runtime
+    before it decides), else None."""
 
     poses: list[np.ndarray]
     goals: list[np.ndarray]
@@ -84,6 +86,7 @@ class Recording:
     observations: list[dict[str, np.ndarray]]
     waypoints: np.ndarray
     starts: list[bool]
+    hazards: list[np.ndarray | None]
 
 
 def sensor_frame_points(env: RoverNavEnv, frame) -> np.ndarray:
@@ -105,7 +108,7 @@ def record(env: RoverNavEnv, policy, n: int, seed: int = 0) -> Recording:
 
     env.sensor.capture = recording_capture
     try:
-        rec = Recording([], [], [], [], np.empty((n, 2)), [])
+        rec = Recording([], [], [], [], np.empty((n, 2)), [], [])
         obs, _ = env.reset(seed=seed)
         policy.reset(env)  # as the evaluation does every episode (a shielded policy forgets its map)
         start = True
@@ -116,6 +119,8 @@ def record(env: RoverNavEnv, policy, n: int, seed: int = 0) -> Recording:
             rec.goals.append(env.goal.copy())
             rec.clouds.append(sensor_frame_points(env, frames[-1]))
             rec.observations.append(obs)
+            last = env.last_waypoint
+            rec.hazards.append(None if start or last is None else last.hazard_xy)
             action = policy.act(obs, env)
             rec.waypoints[i] = est.xy + env.mapping.offset(action, est.yaw)
             obs, _, terminated, truncated, _ = env.step(action)

@@ -22,11 +22,13 @@ def replay(nav: Navigator, rec) -> dict[str, float]:
     """Max errors of the runtime against the recording: goal vector, encoding, waypoint."""
     key = nav.sensor_key
     err = {"goal": 0.0, "encoding": 0.0, "waypoint": 0.0}
-    for pose, goal, cloud, obs, want, start in zip(
-        rec.poses, rec.goals, rec.clouds, rec.observations, rec.waypoints, rec.starts
+    for pose, goal, cloud, obs, want, start, hazard in zip(
+        rec.poses, rec.goals, rec.clouds, rec.observations, rec.waypoints, rec.starts, rec.hazards
     ):
         if start:
             nav.reset()
+        if hazard is not None:  # what the rover's tilt guard (or a slope) reported of the last drive
+            nav.report_hazard(hazard)
         built = nav.observation(pose, goal, cloud)
         err["goal"] = max(err["goal"], float(np.max(np.abs(built["goal"] - obs["goal"]))))
         err["encoding"] = max(err["encoding"], float(np.max(np.abs(built[key] - obs[key]))))
@@ -130,8 +132,15 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         "sensor.elevation_map.memory=true",
         "sensor.elevation_map.memory_radius=20",
         "action_space=discrete",
+        "robot.tilt_guard_deg=12",  # halts often on this small rough world: hazards for the shield
     ]
-    shield = ["eval.shield.enabled=true", "eval.shield.limit_deg=6", "eval.shield.radius=20"]  # strict: many vetoes
+    # strict: many vetoes, by the map and by the hazards the tilt guard reports
+    shield = [
+        "eval.shield.enabled=true",
+        "eval.shield.limit_deg=6",
+        "eval.shield.radius=20",
+        "eval.shield.hazard_radius=0.5",
+    ]
     run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
     try:
         policy = run.loaded.policy
@@ -142,6 +151,8 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         run.env.close()
     print(f"shielded parity over 150 observations: {err}; simulator vetoes {policy.shield.vetoes}")
     assert nav.spec.shield is not None and nav.spec.shield["limit_deg"] == 6.0
+    assert nav.spec.shield["hazard_radius"] == 0.5
+    assert sum(h is not None for h in rec.hazards) > 0  # the guard tripped, and the runtime was told
     assert nav.shield.vetoes == policy.shield.vetoes > 10  # the shield changed course, the same times in both
     assert err["encoding"] <= 1e-6
     assert err["waypoint"] <= TOLERANCE_M

@@ -114,6 +114,21 @@ def test_invalid_points_can_be_dropped_and_poses_given_either_way(nav):
         nav.next_waypoint(pose, (6.0, 4.0), np.full((4, 3), np.nan), drop_invalid=True)
 
 
+@pytest.mark.parametrize("xy", [(1.0,), (1.0, np.nan), "here", (1.0, 2.0, 3.0)])
+def test_a_hazard_report_must_be_a_finite_point(nav, xy):
+    with pytest.raises(ValueError, match="report_hazard: expected a finite world"):
+        nav.report_hazard(xy)
+
+
+def test_without_the_shield_a_hazard_report_changes_nothing(nav):
+    cloud = synthetic_cloud(nav.spec.sensor)
+    pose = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    want = nav.next_waypoint(pose, (5.0, 0.0), cloud)
+    assert nav.shield is None
+    nav.report_hazard((*want,))  # right where the policy drives
+    np.testing.assert_array_equal(nav.next_waypoint(pose, (5.0, 0.0), cloud), want)
+
+
 def test_rover_frame_offsets_turn_with_the_yaw(nav):
     offset = np.array([1.0, 0.5])
     np.testing.assert_allclose(nav.waypoint((2.0, 3.0, 0, 0, 0, math.pi / 2), offset), [1.5, 4.0])

@@ -78,9 +78,43 @@ def test_choose_falls_back_to_the_policys_choice_beyond_top_k_or_when_all_are_ve
         s.choose([], offsets, np.zeros(2))
 
 
+def test_a_hazard_felt_vetoes_the_drives_that_pass_near_it_until_reset():
+    """Where the wheels met ground they could not drive (the tilt guard, a slope) is kept off, though the map
+    shows flat ground there (what the rover tips on is often narrower than the map's cells)."""
+    s = seen(lambda x, y: 0.0 * x, hazard_radius=0.5)
+    start = np.zeros(2)
+    offsets = np.array([[3.0, 0.0], [2.0, 0.3], [1.0, 0.0], [0.0, 3.0], [-1.0, 0.0], [3.0, 2.0]])
+    assert s.near_hazard(start, offsets).tolist() == [False] * 6
+    s.mark_hazard(np.array([2.0, 0.0]))
+    s.mark_hazard(None)  # nothing felt this step
+    # through it; ending 0.3 m aside of it; stopping 1 m short, across, away and well aside: allowed
+    assert s.near_hazard(start, offsets).tolist() == [True, True, False, False, False, False]
+    assert not s.allows(start, offsets[0]) and s.allows(start, offsets[2])
+    assert s.choose([0, 1, 5, 2], offsets, start) == 5 and s.vetoes == 1
+    # a rover held just short of it may leave it, or pass aside, but not drive on towards it
+    near = s.near_hazard(np.array([1.8, 0.0]), np.array([[-2.0, 0.0], [0.0, 1.0], [1.0, 0.0], [0.15, 0.0]]))
+    assert near.tolist() == [False, False, True, True]
+    s.reset()
+    assert s.near_hazard(start, offsets).tolist() == [False] * 6
+
+
+def test_without_a_hazard_radius_hazards_are_not_kept():
+    s = seen(lambda x, y: 0.0 * x)  # hazard_radius 0 (the default)
+    s.mark_hazard(np.array([2.0, 0.0]))
+    assert len(s.hazards) == 0 and s.allows(np.zeros(2), np.array([3.0, 0.0]))
+
+
 @pytest.mark.parametrize(
     ("key", "value"),
-    [("cell_size", 0.0), ("spacing", -0.1), ("radius", 0.0), ("limit_deg", 0.0), ("limit_deg", 90.0), ("top_k", 0)],
+    [
+        ("cell_size", 0.0),
+        ("spacing", -0.1),
+        ("radius", 0.0),
+        ("limit_deg", 0.0),
+        ("limit_deg", 90.0),
+        ("top_k", 0),
+        ("hazard_radius", -0.5),
+    ],
 )
 def test_bad_settings_name_their_key(key, value):
     with pytest.raises(ConfigError, match=f"eval.shield.{key}"):

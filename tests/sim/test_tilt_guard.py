@@ -1,0 +1,127 @@
+"""The rover's tilt fault protection (``robot.tilt_guard_deg``): a drive halts where the tilt passes the guard,
+backs ``robot.guard_retreat`` metres along its own track, and reports where the guard tripped (``hazard_xy``).
+Both dynamics models, on a terrain whose cross slope grows along the drive until the rover would tip."""
+
+import math
+
+import numpy as np
+import pytest
+
+from diana_lab.config import ConfigError, build, to_object
+from diana_lab.sim.controller import TurnThenDrive
+from diana_lab.sim.terrain import Terrain
+from diana_lab.sim.world import World
+
+CROSS_DEG = 45.0  # the cross slope the ramp reaches (the Jackal tips at 35)
+
+
+def twisting_ramp(size: float = 20.0, length: float = 4.0) -> World:
+    """Flat for x <= 0; from there the cross slope (up towards +y) grows linearly to CROSS_DEG at x = length."""
+    x = np.linspace(-size / 2, size / 2, 161)
+    gx, gy = np.meshgrid(x, x)
+    grid = gy * math.tan(math.radians(CROSS_DEG)) * np.clip(gx / length, 0.0, 1.0)
+    return World("twist", Terrain(grid, size, size))
+
+
+def robot(**overrides):
+    return to_object("robot", {**to_object("robot", "jackal").__dict__, **overrides})
+
+
+def make(name: str, world: World, rover):
+    cfg = to_object("dynamics", {"name": name})
+    return build(cfg, world, rover), TurnThenDrive(cfg.controller, rover)
+
+
+@pytest.fixture(scope="module")
+def ramp():
+    return twisting_ramp()
+
+
+def test_without_the_guard_the_drive_tips_over(ramp):
+    dyn, ctl = make("kinematic", ramp, robot())
+    dyn.reset(np.array([-2.0, 0.0]), 0.0)
+    result = dyn.execute(np.array([6.0, 0.0]), ctl)
+    assert result.outcome == "tipover"
+    assert result.hazard_xy is None
+
+
+@pytest.mark.parametrize("retreat", [0.0, 1.2, 50.0])
+def test_kinematic_guard_halts_backs_off_and_reports_where(ramp, retreat):
+    guard = 20.0
+    rover = robot(tilt_guard_deg=guard, guard_retreat=retreat)
+    dyn, ctl = make("kinematic", ramp, rover)
+    dyn.reset(np.array([-2.0, 0.0]), 0.0)
+    result = dyn.execute(np.array([6.0, 0.0]), ctl)
+    assert result.outcome == "halted" and not result.failed
+    # the guard tripped at the first path sample over it: there the tilt is above the guard, before it below
+    hx, hy = result.hazard_xy
+    assert hy == pytest.approx(0.0, abs=1e-9)
+    spacing = dyn.cfg.sample_spacing
+    z, rp = dyn._poses(np.array([[hx, hy], [hx - spacing, hy]]), np.zeros(2))
+    tilt = np.degrees(np.arccos(np.cos(rp[:, 0]) * np.cos(rp[:, 1])))
+    assert tilt[0] > guard >= tilt[1] - 1e-6
+    # the rover stopped one sample short of it and backed off along its track (never past where it started)
+    stop = hx - spacing
+    end = max(stop - retreat, -2.0)
+    assert dyn.state.xy[0] == pytest.approx(end, abs=spacing + 1e-6)
+    assert dyn.state.xy[1] == pytest.approx(0.0, abs=1e-9) and dyn.state.yaw == pytest.approx(0.0)
+    assert dyn.state.tilt_deg < guard
+    # the trace goes out and back; length and time count both ways
+    trace_x = result.trace_xy[:, 0]
+    assert trace_x.max() == pytest.approx(stop, abs=1e-6)
+    assert trace_x[-1] == pytest.approx(dyn.state.xy[0])
+    assert result.path_length == pytest.approx((stop + 2.0) + (stop - dyn.state.xy[0]), abs=1e-6)
+    assert np.all(np.diff(result.trace_t) >= 0)
+    assert result.duration == pytest.approx(result.path_length / rover.cruise_speed, rel=1e-6)
+    assert result.max_tilt_deg <= guard
+
+
+def test_the_guard_trips_before_a_tip_between_two_samples(ramp):
+    """A tilt that jumps from under the guard to over the tip-over limit between two samples crossed the guard
+    first (it is continuous along the path): halted, not tipped."""
+    rover = robot(tilt_guard_deg=34.9)
+    dyn, ctl = make("kinematic", ramp, rover)
+    dyn.reset(np.array([-2.0, 0.0]), 0.0)
+    result = dyn.execute(np.array([6.0, 0.0]), ctl)
+    assert result.outcome == "halted"
+
+
+def test_a_slope_too_steep_to_climb_reports_its_foot(ramp):
+    from tests.sim.test_kinematic import slope_world
+
+    world = slope_world(30.0)
+    dyn, ctl = make("kinematic", world, robot())
+    dyn.reset(np.array([-3.0, 0.0]), 0.0)
+    result = dyn.execute(np.array([3.0, 0.0]), ctl)
+    assert result.outcome == "stuck"
+    assert -0.5 < result.hazard_xy[0] < 0.5 and dyn.state.xy[0] < result.hazard_xy[0]
+
+
+def test_physics_guard_halts_and_backs_off(ramp):
+    guard, retreat = 15.0, 1.0
+    dyn, ctl = make("physics", ramp, robot(tilt_guard_deg=guard, guard_retreat=retreat))
+    try:
+        dyn.reset(np.array([-2.0, 0.0]), 0.0)
+        result = dyn.execute(np.array([6.0, 0.0]), ctl)
+        assert result.outcome == "halted", result.detail
+        assert "tilt guard" in result.detail
+        hx, hy = result.hazard_xy
+        assert 0.5 < hx < 3.0  # on the ramp, before it gets steep enough to tip
+        assert hx - dyn.state.xy[0] >= retreat - 0.05  # backed off along its track
+        assert dyn.state.tilt_deg < guard
+        assert result.path_length >= 2.0 + hx + retreat - 0.3  # out and back
+    finally:
+        dyn.close()
+
+
+@pytest.mark.parametrize(
+    "overrides, key",
+    [
+        ({"tilt_guard_deg": 35.0}, "robot.tilt_guard_deg"),
+        ({"tilt_guard_deg": 0.0}, "robot.tilt_guard_deg"),
+        ({"guard_retreat": -1.0}, "robot.guard_retreat"),
+    ],
+)
+def test_bad_guard_settings_name_their_key(overrides, key):
+    with pytest.raises(ConfigError, match=key):
+        robot(**overrides)
