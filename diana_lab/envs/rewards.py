@@ -87,8 +87,9 @@ def time(ctx: RewardContext, scale: float = 10.0) -> float:
 
 
 def stall(ctx: RewardContext) -> float:
-    """-1 when the controller could not finish the waypoint (stuck at a slope or gave up)."""
-    return -1.0 if ctx.waypoint.outcome in ("stuck", "gave_up") else 0.0
+    """-1 when the controller could not finish the waypoint (stuck at a slope, gave up, or the rover's tilt guard
+    halted it: ground it could not drive, as a slope it could not climb)."""
+    return -1.0 if ctx.waypoint.outcome in ("stuck", "gave_up", "halted") else 0.0
 
 
 # --------------------------------------------------------------------------- manager

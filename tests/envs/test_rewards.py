@@ -76,3 +76,10 @@ def test_unknown_term_function_or_parameter_is_a_clear_error():
                 },
             )
         )
+
+
+@pytest.mark.parametrize(("wp", "want"), [("reached", 0.0), ("stuck", -1.0), ("gave_up", -1.0), ("halted", -1.0)])
+def test_stall_pays_for_a_waypoint_the_controller_could_not_finish(wp, want):
+    from diana_lab.envs.rewards import stall
+
+    assert stall(ctx(wp=wp)) == want
