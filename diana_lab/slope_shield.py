@@ -103,21 +103,20 @@ class SlopeShield:
             self.hazards = np.concatenate([self.hazards, point])
 
     def near_hazard(self, start_xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        """Whether each drive in ``offsets`` ``(K, 2)`` passes within ``hazard_radius`` of a hazard felt, ``(K,)``
-        bool: checked every ``spacing`` metres from the first step on. A rover already that close (a slope held
-        it just short of the spot) may drive anywhere that does not take it closer."""
+        """Whether each straight drive in ``offsets`` ``(K, 2)`` comes within ``hazard_radius`` of a hazard felt
+        this episode, ``(K,)`` bool (the segment's closest approach). A rover already that close (a slope held it
+        just short of the spot) may drive anywhere that does not take it closer than it is."""
         offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
         if len(self.hazards) == 0 or len(offsets) == 0:
             return np.zeros(len(offsets), dtype=bool)
         start = np.asarray(start_xy, dtype=np.float64)[:2]
-        lengths = np.hypot(offsets[:, 0], offsets[:, 1])
-        steps = int(np.ceil(lengths.max() / self.cfg.spacing + 1e-9))
-        frac = np.minimum(np.arange(1, steps + 1) * self.cfg.spacing / np.maximum(lengths, 1e-12)[:, None], 1.0)
-        points = start + frac[..., None] * offsets[:, None, :]  # (K, steps, 2), the drive's end repeated
-        gap = points[:, :, None, :] - self.hazards[None, None]
-        closest = np.hypot(gap[..., 0], gap[..., 1]).min(axis=1)  # (K, hazards)
-        reach = np.minimum(np.hypot(*(start - self.hazards).T), self.cfg.hazard_radius)
-        return (closest < reach).any(axis=1) & (lengths >= 1e-9)
+        rel = self.hazards - start  # (H, 2)
+        sq = np.maximum((offsets * offsets).sum(axis=1), 1e-18)[:, None]  # (K, 1)
+        t = np.clip((offsets @ rel.T) / sq, 0.0, 1.0)  # (K, H): where along each drive it comes closest
+        gap = t[..., None] * offsets[:, None, :] - rel[None]
+        closest = np.hypot(gap[..., 0], gap[..., 1])
+        reach = np.minimum(np.hypot(rel[:, 0], rel[:, 1]), self.cfg.hazard_radius)
+        return (closest < reach).any(axis=1)
 
     def observe(self, points_world: np.ndarray, rover_xy: np.ndarray) -> None:
         """Fuse one frame's returns, ``(N, 3)`` in the world frame; ``rover_xy`` centres the map on an

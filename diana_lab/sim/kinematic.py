@@ -13,7 +13,8 @@ samples). The first sample that violates a limit ends the waypoint:
   (below the tip-over limit). The rover stops at the sample before and backs ``robot.guard_retreat`` metres
   along its own track; the trace holds the drive out and back.
 
-``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``).
+``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``; a halt while
+turning in place reports half a rover length towards the heading it was turning to).
 
 PyBullet is used only for rendering, through the same scene as the physics mode, built lazily.
 """
@@ -28,7 +29,7 @@ import numpy as np
 
 from diana_lab.config.sim import KinematicConfig, RobotConfig
 from diana_lab.sim.controller import TurnThenDrive, wrap_angle
-from diana_lab.sim.state import RoverState, WaypointResult, tilt_deg
+from diana_lab.sim.state import RoverState, WaypointResult, tilt_deg, turn_hazard_offset
 from diana_lab.sim.world import World
 
 PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
@@ -197,8 +198,10 @@ class KinematicDynamics:
             self._state.time += self.cfg.stuck_window_s
         result = self._finish(outcome, float(trace_t[-1]), xy[keep], tilt[keep], rp[keep], length)
         result.trace_t = trace_t
-        if outcome == "stuck" or (outcome == "halted" and first >= m):  # not for a halt while turning in place
+        if outcome == "stuck" or (outcome == "halted" and first >= m):
             result.hazard_xy = xy[first].copy()
+        elif outcome == "halted":  # while turning in place: that way is barred from here, so mark it ahead
+            result.hazard_xy = xy[0] + turn_hazard_offset(robot.length, float(yaws[-1]))
         return result
 
     def _finish(

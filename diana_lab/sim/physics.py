@@ -14,8 +14,9 @@ except contacts with obstacles, which are checked every physics step while an ob
 * ``out_of_bounds``: the rover's centre leaves the terrain;
 * ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passed the guard
   (below the tip-over limit); the rover stopped there and backed ``robot.guard_retreat`` metres (never past
-  where the drive began) before the waypoint ended. ``hazard_xy`` is where the guard tripped (None if it
-  tripped while turning in place); a ``stuck`` while driving forward reports half a rover length ahead;
+  where the drive began) before the waypoint ended. ``hazard_xy`` is where the guard tripped (while turning in
+  place: half a rover length towards the waypoint); a ``stuck`` while driving forward reports half a rover
+  length ahead;
 * ``sim_error``: a non-finite or absurd state (speed above 20 m/s, spin above 50 rad/s, fallen through the
   terrain) or a PyBullet error. ``state`` then stays at the last sane pose (finite observations and reward for
   the episode's last step), and the next ``reset`` rebuilds the PyBullet client, since a NaN body can leave
@@ -41,7 +42,7 @@ import pybullet as pb
 from diana_lab.config.sim import PhysicsConfig, RobotConfig
 from diana_lab.sim.controller import TurnThenDrive, wrap_angle
 from diana_lab.sim.pybullet_scene import PybulletScene
-from diana_lab.sim.state import Outcome, RoverState, WaypointResult, tilt_deg
+from diana_lab.sim.state import Outcome, RoverState, WaypointResult, tilt_deg, turn_hazard_offset
 from diana_lab.sim.world import World
 
 PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
@@ -301,6 +302,8 @@ class PhysicsDynamics:
                 trip = f"tilt guard: {tilt:.1f} deg at ({x:.2f}, {y:.2f})"
                 if phase != "drive" or drive_from is None:  # turning in place: stop where it stands
                     outcome, detail = "halted", trip
+                    heading = math.atan2(waypoint[1] - est_xy[1], waypoint[0] - est_xy[0])
+                    hazard = np.array([x, y]) + turn_hazard_offset(self.robot.length, heading)
                     break
                 hazard = np.array([x, y])
                 retreat = (x, y, min(self.robot.guard_retreat, math.hypot(x - drive_from[0], y - drive_from[1])))

@@ -100,3 +100,10 @@ class WaypointResult:
     @property
     def max_tilt_deg(self) -> float:
         return float(self.trace_tilt_deg.max()) if len(self.trace_tilt_deg) else 0.0
+
+
+def turn_hazard_offset(length: float, heading: float) -> np.ndarray:
+    """Where a tilt-guard halt while turning in place towards ``heading`` (rad) is reported, relative to the
+    rover: half its ``length`` that way. The spot is not steep itself; reporting it keeps the slope shield from
+    sending the rover that way again from here, which is what the guard learnt."""
+    return 0.5 * length * np.array([math.cos(heading), math.sin(heading)])

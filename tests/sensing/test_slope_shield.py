@@ -94,6 +94,8 @@ def test_a_hazard_felt_vetoes_the_drives_that_pass_near_it_until_reset():
     # a rover held just short of it may leave it, or pass aside, but not drive on towards it
     near = s.near_hazard(np.array([1.8, 0.0]), np.array([[-2.0, 0.0], [0.0, 1.0], [1.0, 0.0], [0.15, 0.0]]))
     assert near.tolist() == [False, False, True, True]
+    # held 0.05 m short of it (closer than a check every `spacing`): on through it is closer, so vetoed
+    assert s.near_hazard(np.array([1.95, 0.0]), np.array([[1.0, 0.0], [-1.0, 0.0]])).tolist() == [True, False]
     s.reset()
     assert s.near_hazard(start, offsets).tolist() == [False] * 6
 

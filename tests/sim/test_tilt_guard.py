@@ -86,6 +86,20 @@ def test_the_guard_trips_before_a_tip_between_two_samples(ramp):
     assert result.outcome == "halted"
 
 
+def test_a_halt_while_turning_in_place_bars_that_way_from_here():
+    """On a uniform 10 deg slope a 5 deg guard trips at the turn's first sample: the rover stays where it was
+    (nothing to back along) and reports half a rover length towards the heading it was turning to."""
+    from tests.sim.test_kinematic import slope_world
+
+    rover = robot(tilt_guard_deg=5.0)
+    dyn, ctl = make("kinematic", slope_world(10.0), rover)
+    dyn.reset(np.array([3.0, 0.0]), 0.0)
+    result = dyn.execute(np.array([3.0, 3.0]), ctl)  # a quarter turn to the left first
+    assert result.outcome == "halted" and result.path_length == 0.0
+    np.testing.assert_allclose(dyn.state.xy, [3.0, 0.0])
+    np.testing.assert_allclose(result.hazard_xy, [3.0, 0.5 * rover.length], atol=1e-9)
+
+
 def test_a_slope_too_steep_to_climb_reports_its_foot(ramp):
     from tests.sim.test_kinematic import slope_world
 
@@ -125,3 +139,21 @@ def test_physics_guard_halts_and_backs_off(ramp):
 def test_bad_guard_settings_name_their_key(overrides, key):
     with pytest.raises(ConfigError, match=key):
         robot(**overrides)
+
+
+def test_physics_halt_while_turning_reports_the_way_it_was_turning_to():
+    from tests.sim.test_kinematic import slope_world
+
+    rover = robot(tilt_guard_deg=5.0)
+    dyn, ctl = make("physics", slope_world(10.0), rover)
+    try:
+        dyn.reset(np.array([3.0, 0.0]), 0.0)
+        start = dyn.state.xy.copy()
+        result = dyn.execute(np.array([3.0, 3.0]), ctl)
+        assert result.outcome == "halted" and "tilt guard" in result.detail
+        assert np.hypot(*(dyn.state.xy - start)) < 0.1  # it stopped where it stood
+        ahead = result.hazard_xy - dyn.state.xy
+        assert np.hypot(*ahead) == pytest.approx(0.5 * rover.length, rel=1e-6)
+        assert math.degrees(math.atan2(ahead[1], ahead[0])) == pytest.approx(90.0, abs=5.0)
+    finally:
+        dyn.close()
