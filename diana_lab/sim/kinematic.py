@@ -13,8 +13,8 @@ samples). The first sample that violates a limit ends the waypoint:
   (below the tip-over limit). The rover stops at the sample before and backs ``robot.guard_retreat`` metres
   along its own track; the trace holds the drive out and back.
 
-``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``; a halt while
-turning in place reports half a rover length towards the heading it was turning to).
+``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``; while
+turning in place, half a rover length towards the heading it was turning to).
 
 PyBullet is used only for rendering, through the same scene as the physics mode, built lazily.
 """
@@ -198,9 +198,9 @@ class KinematicDynamics:
             self._state.time += self.cfg.stuck_window_s
         result = self._finish(outcome, float(trace_t[-1]), xy[keep], tilt[keep], rp[keep], length)
         result.trace_t = trace_t
-        if outcome == "stuck" or (outcome == "halted" and first >= m):
+        if outcome in ("stuck", "halted") and first >= m:
             result.hazard_xy = xy[first].copy()
-        elif outcome == "halted":  # while turning in place: that way is barred from here, so mark it ahead
+        elif outcome in ("stuck", "halted"):  # while turning in place: that way is barred from here, so mark it ahead
             result.hazard_xy = xy[0] + turn_hazard_offset(robot.length, float(yaws[-1]))
         return result
 
