@@ -100,6 +100,19 @@ def test_a_halt_while_turning_in_place_bars_that_way_from_here():
     np.testing.assert_allclose(result.hazard_xy, [3.0, 0.5 * rover.length], atol=1e-9)
 
 
+def test_a_slope_that_stops_a_turn_in_place_reports_the_way_it_was_turning_to():
+    """Across a 30 deg slope (tilt under the Jackal's 35), turning to face uphill raises the nose past the 25 deg
+    it can climb before the turn ends: stuck while turning, reported half a rover length uphill."""
+    from tests.sim.test_kinematic import slope_world
+
+    rover = robot()
+    dyn, ctl = make("kinematic", slope_world(30.0), rover)
+    dyn.reset(np.array([3.0, 0.0]), math.pi / 2)
+    result = dyn.execute(np.array([6.0, 0.0]), ctl)
+    assert result.outcome == "stuck" and result.path_length == 0.0
+    np.testing.assert_allclose(result.hazard_xy, [3.0 + 0.5 * rover.length, 0.0], atol=1e-9)
+
+
 def test_a_slope_too_steep_to_climb_reports_its_foot(ramp):
     from tests.sim.test_kinematic import slope_world
 
