@@ -284,7 +284,7 @@ class PhysicsDynamics:
                 break
             elapsed += self._tick
             self._time += self._tick
-            outcome, detail = self._check(pos, rpy, lin, ang, hit)
+            outcome, detail, tilt = self._check(pos, rpy, lin, ang, hit)
             if outcome == "sim_error":
                 self._wrecked(*sane)  # keep the traces and the state finite
                 break
@@ -297,7 +297,6 @@ class PhysicsDynamics:
             pitches.append(rpy[1])
             if outcome is not None:
                 break
-            tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(rpy[0]) * math.cos(rpy[1])))))
             if guard is not None and retreat is None and tilt > guard:
                 trip = f"tilt guard: {tilt:.1f} deg at ({x:.2f}, {y:.2f})"
                 if phase != "drive" or drive_from is None:  # turning in place: stop where it stands
@@ -368,25 +367,26 @@ class PhysicsDynamics:
         lin: tuple[float, ...],
         ang: tuple[float, ...],
         hit: str,
-    ) -> tuple[Outcome | None, str]:
-        """The failure (if any) of the state after a control period, most fundamental first."""
+    ) -> tuple[Outcome | None, str, float]:
+        """The failure (if any) of the state after a control period, most fundamental first, and the tilt
+        (degrees; NaN for a non-finite state), which the tilt guard reads too."""
         values = (*pos, *rpy, *lin, *ang)
         if not all(math.isfinite(v) for v in values):
-            return "sim_error", "non-finite rover state"
+            return "sim_error", "non-finite rover state", math.nan
+        tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(rpy[0]) * math.cos(rpy[1])))))
         speed, spin = math.hypot(*lin), math.hypot(*ang)
         if speed > MAX_SPEED or spin > MAX_SPIN:
-            return "sim_error", f"exploding state: speed {speed:.3g} m/s, spin {spin:.3g} rad/s"
+            return "sim_error", f"exploding state: speed {speed:.3g} m/s, spin {spin:.3g} rad/s", tilt
         if pos[2] < self._floor:
-            return "sim_error", f"fell through the terrain (z = {pos[2]:.2f} m)"
+            return "sim_error", f"fell through the terrain (z = {pos[2]:.2f} m)", tilt
         if hit:
-            return "collision", f"hit {hit}"
-        tilt = math.degrees(math.acos(max(-1.0, min(1.0, math.cos(rpy[0]) * math.cos(rpy[1])))))
+            return "collision", f"hit {hit}", tilt
         if tilt > self.robot.tipover_deg:
-            return "tipover", f"tilt {tilt:.1f} deg"
+            return "tipover", f"tilt {tilt:.1f} deg", tilt
         x0, x1, y0, y1 = self._bounds
         if not (x0 <= pos[0] <= x1 and y0 <= pos[1] <= y1):
-            return "out_of_bounds", f"left the terrain at ({pos[0]:.1f}, {pos[1]:.1f})"
-        return None, ""
+            return "out_of_bounds", f"left the terrain at ({pos[0]:.1f}, {pos[1]:.1f})", tilt
+        return None, "", tilt
 
     # ------------------------------------------------------------------ life cycle
     def scene(self) -> PybulletScene:
