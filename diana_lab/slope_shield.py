@@ -52,6 +52,8 @@ class ShieldSettings:
     half_base: float  # half the distance between the outermost axles (m)
     half_track: float  # half the track width (m)
     hazard_radius: float = 0.0  # m; 0: hazards felt are not used (sidecars written before the key: off)
+    obstacle_height: float = 0.0  # m above the highest wheel probe within the footprint; 0: off (older sidecars)
+    footprint_radius: float = 0.0  # m: the rover's footprint, what the obstacle check searches
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -64,6 +66,8 @@ class ShieldSettings:
             (max(robot.axle_x) - min(robot.axle_x)) / 2.0,
             float(robot.track_width) / 2.0,
             float(cfg.hazard_radius),
+            float(cfg.obstacle_height),
+            float(robot.radius),
         )
 
     @classmethod
@@ -82,6 +86,16 @@ class SlopeShield:
             raise ValueError(f"SlopeShield: expected a positive wheelbase and track, got {settings}")
         if not settings.hazard_radius >= 0:
             raise ValueError(f"SlopeShield: expected hazard_radius >= 0, got {settings.hazard_radius}")
+        if not (settings.obstacle_height >= 0 and (settings.obstacle_height == 0 or settings.footprint_radius > 0)):
+            raise ValueError(
+                "SlopeShield: expected obstacle_height >= 0 and, with it, a positive footprint_radius, got "
+                f"{settings.obstacle_height}, {settings.footprint_radius}"
+            )
+        # the obstacle check's probes around each sample: the centre and rings at half and the whole footprint
+        ring = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)
+        unit = np.stack([np.cos(ring), np.sin(ring)], axis=1)
+        r = settings.footprint_radius
+        self._footprint = np.concatenate([np.zeros((1, 2)), 0.5 * r * unit[::2], r * unit])  # (13, 2)
         self.cfg = settings
         self.memory = HeightMemory(settings.cell_size, settings.radius, 1, 1, 0.0, 0.0)
         self._samples: dict[float, np.ndarray] = {}  # distances along a drive, per drive length
@@ -182,9 +196,39 @@ class SlopeShield:
                 np.abs(front - rear) / (2.0 * self.half_base), np.abs(left - right) / (2.0 * self.half_track)
             )
 
+    def obstacle_m(self, start_xy: np.ndarray, offset: np.ndarray) -> float:
+        """The most the map shows anything within the rover's footprint rising above its highest wheel probe
+        (front and rear axle centres, left and right tracks) along the straight drive (m; 0 where it knows
+        nothing): a rock between or beside the wheels that the tilt check cannot see. 0 with the check off."""
+        length = float(np.hypot(offset[0], offset[1]))
+        if self.cfg.obstacle_height <= 0 or length < 1e-9:
+            return 0.0
+        start = np.asarray(start_xy, dtype=np.float64)[:2]
+        u = np.asarray(offset, dtype=np.float64) / length
+        n = np.array([-u[1], u[0]])
+        centre = start + np.arange(self.cfg.spacing, length + 1e-9, self.cfg.spacing)[:, None] * u
+        along, across = self.half_base * u, self.half_track * n
+        wheels = np.concatenate([centre + along, centre - along, centre + across, centre - across])
+        around = (centre[:, None, :] + self._footprint[None]).reshape(-1, 2)
+        h, _ = self.memory.heights_at(*np.concatenate([wheels, around]).T)
+        m = len(centre)
+        ground = np.fmax.reduce(h[: 4 * m].reshape(4, m), axis=0)  # NaN only where no wheel probe is known
+        top = np.fmax.reduce(h[4 * m :].reshape(m, -1), axis=1)
+        with np.errstate(invalid="ignore"):
+            rise = top - ground
+        return float(np.fmax.reduce(rise, initial=0.0))
+
     def allows(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
-        """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``, and not near a hazard felt)."""
-        return self.steepest_deg(start_xy, offset) <= self.cfg.limit_deg and not self.near_hazard(start_xy, offset)[0]
+        """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``, not near a hazard felt,
+        and no obstacle in the footprint above ``obstacle_height``)."""
+        return (
+            self.steepest_deg(start_xy, offset) <= self.cfg.limit_deg
+            and not self.near_hazard(start_xy, offset)[0]
+            and not self._obstructed(start_xy, offset)
+        )
+
+    def _obstructed(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
+        return self.cfg.obstacle_height > 0 and self.obstacle_m(start_xy, offset) > self.cfg.obstacle_height
 
     def choose(self, ranked: Sequence[int], offsets: np.ndarray, start_xy: np.ndarray) -> int:
         """The first of ``ranked`` (candidate indices, the policy's choice first) among its first ``top_k``
@@ -196,12 +240,18 @@ class SlopeShield:
         offsets = np.asarray(offsets)
         # the policy's own choice first (it passes ~6 times in 7 on the Mars yard), then the rest in one lookup
         first = offsets[top[:1]]
-        if self.steepest_many(start_xy, first)[0] <= self.cfg.limit_deg and not self.near_hazard(start_xy, first)[0]:
+        if (
+            self.steepest_many(start_xy, first)[0] <= self.cfg.limit_deg
+            and not self.near_hazard(start_xy, first)[0]
+            and not self._obstructed(start_xy, first[0])
+        ):
             return int(top[0])
         rest = offsets[top[1:]]
         ok = (self.steepest_many(start_xy, rest) <= self.cfg.limit_deg) & ~self.near_hazard(start_xy, rest)
-        allowed = np.flatnonzero(ok)
-        if len(allowed) == 0:
+        # the obstacle check costs more a drive: only for the candidates that pass the rest, in the policy's order
+        allowed = (j for j in np.flatnonzero(ok) if not self._obstructed(start_xy, rest[j]))
+        j = next(allowed, None)
+        if j is None:
             return int(top[0])
         self.vetoes += 1
-        return int(top[1 + allowed[0]])
+        return int(top[1 + j])

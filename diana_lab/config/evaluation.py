@@ -29,9 +29,13 @@ class ShieldConfig:
     # m: also veto a drive passing this close to where the wheels met ground they could not drive this episode
     # (the rover's tilt guard tripped, robot.tilt_guard_deg, or a slope held it: ``hazard_xy``); 0: off
     hazard_radius: float = 0.0
+    # m: also veto a drive where the map shows anything within the rover's footprint (robot.radius) rising more
+    # than this above its highest wheel probe (a rock between or beside the wheels); 0: off
+    obstacle_height: float = 0.0
 
     def __post_init__(self) -> None:
         non_negative("eval.shield.hazard_radius", self.hazard_radius)
+        non_negative("eval.shield.obstacle_height", self.obstacle_height)
         positive("eval.shield.cell_size", self.cell_size)
         positive("eval.shield.spacing", self.spacing)
         positive("eval.shield.radius", self.radius)

@@ -100,6 +100,21 @@ def test_a_hazard_felt_vetoes_the_drives_that_pass_near_it_until_reset():
     assert s.near_hazard(start, offsets).tolist() == [False] * 6
 
 
+def test_a_rock_beside_the_tracks_is_an_obstacle_the_tilt_check_alone_lets_through():
+    """A 0.3 m rock 0.2-0.4 m to the left of the drive: under the footprint (radius 0.33 m) but beside the left
+    track (0.19 m), so the roll the map shows stays under the limit; the obstacle check vetoes it."""
+    rock = lambda x, y: np.where((y > 0.2) & (y < 0.4) & (x > 1.0) & (x < 1.4), 0.3, 0.0)  # noqa: E731
+    start, through, away = np.zeros(2), np.array([3.0, 0.0]), np.array([0.0, -3.0])
+    plain = seen(rock)
+    assert plain.steepest_deg(start, through) < 25.0 and plain.allows(start, through)  # the check off: passes
+    s = seen(rock, obstacle_height=0.12)
+    assert 0.12 < s.obstacle_m(start, through) <= 0.3 + 1e-6
+    assert not s.allows(start, through)
+    assert s.obstacle_m(start, away) == 0.0 and s.allows(start, away)
+    assert s.choose([0, 1], np.array([through, away]), start) == 1 and s.vetoes == 1
+    assert s.obstacle_m(np.array([5.0, 5.0]), through) == 0.0  # nothing known of that way: passes
+
+
 def test_without_a_hazard_radius_hazards_are_not_kept():
     s = seen(lambda x, y: 0.0 * x)  # hazard_radius 0 (the default)
     s.mark_hazard(np.array([2.0, 0.0]))
@@ -116,6 +131,7 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("limit_deg", 90.0),
         ("top_k", 0),
         ("hazard_radius", -0.5),
+        ("obstacle_height", -0.1),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
