@@ -54,6 +54,7 @@ class ShieldSettings:
     hazard_radius: float = 0.0  # m; 0: hazards felt are not used (sidecars written before the key: off)
     obstacle_height: float = 0.0  # m above the highest wheel probe within the footprint; 0: off (older sidecars)
     footprint_radius: float = 0.0  # m: the rover's footprint, what the obstacle check searches
+    min_range: float = 0.0  # m: returns nearer the sensor are not mapped; 0: all (older sidecars)
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -68,6 +69,7 @@ class ShieldSettings:
             float(cfg.hazard_radius),
             float(cfg.obstacle_height),
             float(robot.radius),
+            float(cfg.min_range),
         )
 
     @classmethod
@@ -84,6 +86,8 @@ class SlopeShield:
             raise ValueError(f"SlopeShield: expected 0 < limit_deg < 90, top_k >= 1, spacing > 0, got {settings}")
         if not (settings.half_base > 0 and settings.half_track > 0):
             raise ValueError(f"SlopeShield: expected a positive wheelbase and track, got {settings}")
+        if not settings.min_range >= 0:
+            raise ValueError(f"SlopeShield: expected min_range >= 0, got {settings.min_range}")
         if not settings.hazard_radius >= 0:
             raise ValueError(f"SlopeShield: expected hazard_radius >= 0, got {settings.hazard_radius}")
         if not (settings.obstacle_height >= 0 and (settings.obstacle_height == 0 or settings.footprint_radius > 0)):
@@ -137,10 +141,23 @@ class SlopeShield:
         episode's first frame."""
         self.memory.update(np.asarray(points_world, dtype=np.float32).reshape(-1, 3), rover_xy)
 
-    def observe_rover(self, points_rover: np.ndarray, position: Sequence[float], rpy: Sequence[float]) -> None:
+    def observe_rover(
+        self,
+        points_rover: np.ndarray,
+        position: Sequence[float],
+        rpy: Sequence[float],
+        sensor_xyz: Sequence[float] | None = None,
+    ) -> None:
         """:meth:`observe` of returns in the rover frame, ``(N, 3)``, taken at world ``position`` and attitude
-        ``rpy``: levelled and placed as the ``elevation_map`` memory places them (simulator and onboard alike)."""
+        ``rpy``: levelled and placed as the ``elevation_map`` memory places them (simulator and onboard alike).
+        With ``min_range`` > 0, returns nearer than that to the sensor (at ``sensor_xyz`` in the rover frame,
+        required then) are left out."""
         pts = np.asarray(points_rover, dtype=np.float32).reshape(-1, 3)
+        if self.cfg.min_range > 0:
+            if sensor_xyz is None:
+                raise ValueError("SlopeShield.observe_rover: min_range > 0 needs the sensor's position (sensor_xyz)")
+            gap = pts - np.asarray(sensor_xyz, dtype=np.float32)
+            pts = pts[np.einsum("ij,ij->i", gap, gap) >= np.float32(self.cfg.min_range) ** 2]
         levelled = pts @ leveling_matrix(rpy).T.astype(np.float32)
         self.observe(HeightMemory.to_world(levelled, position, float(rpy[2])), np.asarray(position)[:2])
 

@@ -32,8 +32,12 @@ class ShieldConfig:
     # m: also veto a drive where the map shows anything within the rover's footprint (robot.radius) rising more
     # than this above its highest wheel probe (a rock between or beside the wheels); 0: off
     obstacle_height: float = 0.0
+    # m: the shield's map leaves out returns nearer than this to the sensor (spurious dust returns live there,
+    # and the lidar never looks again at the ground beside the rover to overwrite them); 0: maps every return
+    min_range: float = 0.0
 
     def __post_init__(self) -> None:
+        non_negative("eval.shield.min_range", self.min_range)
         non_negative("eval.shield.hazard_radius", self.hazard_radius)
         non_negative("eval.shield.obstacle_height", self.obstacle_height)
         positive("eval.shield.cell_size", self.cell_size)

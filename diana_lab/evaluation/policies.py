@@ -166,7 +166,7 @@ class ShieldedPolicy:
         base = env.unwrapped
         frame = base.sensor.last_frame
         if frame is not None:
-            self.shield.observe_rover(frame.points, frame.position, frame.rpy)
+            self.shield.observe_rover(frame.points, frame.position, frame.rpy, base.sensor.mount)
         last = getattr(base, "last_waypoint", None)
         if last is not None:  # where the wheels met ground they could not drive (the tilt guard, a slope)
             self.shield.mark_hazard(last.hazard_xy)

@@ -140,6 +140,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         "eval.shield.limit_deg=6",
         "eval.shield.radius=20",
         "eval.shield.hazard_radius=0.5",
+        "eval.shield.min_range=1.0",  # the runtime then maps the cloud itself, leaving out the near returns
     ]
     run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
     try:
@@ -151,7 +152,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         run.env.close()
     print(f"shielded parity over 150 observations: {err}; simulator vetoes {policy.shield.vetoes}")
     assert nav.spec.shield is not None and nav.spec.shield["limit_deg"] == 6.0
-    assert nav.spec.shield["hazard_radius"] == 0.5
+    assert nav.spec.shield["hazard_radius"] == 0.5 and nav.spec.shield["min_range"] == 1.0
     assert sum(h is not None for h in rec.hazards) > 0  # the guard tripped, and the runtime was told
     assert nav.shield.vetoes == policy.shield.vetoes > 10  # the shield changed course, the same times in both
     assert err["encoding"] <= 1e-6

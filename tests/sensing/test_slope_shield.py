@@ -115,6 +115,22 @@ def test_a_rock_beside_the_tracks_is_an_obstacle_the_tilt_check_alone_lets_throu
     assert s.obstacle_m(np.array([5.0, 5.0]), through) == 0.0  # nothing known of that way: passes
 
 
+def test_returns_near_the_sensor_are_left_out_of_the_map_with_min_range():
+    """A dust return 0.6 m from the sensor, floating 0.3 m above the ground beside the rover, would read as a
+    ledge under the next drive; with min_range 1 m it is not mapped (the ground farther out still is)."""
+    sensor = np.array([0.0, 0.0, 0.5])
+    floor = ground(lambda x, y: 0.0 * x, half=3.0)
+    dust = np.array([[0.45, 0.0, 0.3]])  # 0.49 m from the sensor
+    level = (0.0, 0.0, 0.0)
+    for min_range, vetoed in ((0.0, True), (1.0, False)):
+        s = shield(min_range=min_range)
+        s.observe_rover(np.vstack([floor, dust]), (0.0, 0.0, 0.0), level, sensor)
+        assert (not s.allows(np.zeros(2), np.array([2.0, 0.0]))) == vetoed
+        assert s.memory.heights_at(np.array([2.5]), np.array([0.0]))[1][0]  # far ground is mapped either way
+    with pytest.raises(ValueError, match="sensor_xyz"):
+        shield(min_range=1.0).observe_rover(floor, (0.0, 0.0, 0.0), level)
+
+
 def test_without_a_hazard_radius_hazards_are_not_kept():
     s = seen(lambda x, y: 0.0 * x)  # hazard_radius 0 (the default)
     s.mark_hazard(np.array([2.0, 0.0]))
@@ -132,6 +148,7 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("top_k", 0),
         ("hazard_radius", -0.5),
         ("obstacle_height", -0.1),
+        ("min_range", -1.0),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
