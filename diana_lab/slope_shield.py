@@ -154,12 +154,17 @@ class SlopeShield:
         required then) are left out."""
         pts = np.asarray(points_rover, dtype=np.float32).reshape(-1, 3)
         if self.cfg.min_range > 0:
-            if sensor_xyz is None:
-                raise ValueError("SlopeShield.observe_rover: min_range > 0 needs the sensor's position (sensor_xyz)")
-            gap = pts - np.asarray(sensor_xyz, dtype=np.float32)
-            pts = pts[np.einsum("ij,ij->i", gap, gap) >= np.float32(self.cfg.min_range) ** 2]
+            pts = pts[self.far_enough(pts, sensor_xyz)]
         levelled = pts @ leveling_matrix(rpy).T.astype(np.float32)
         self.observe(HeightMemory.to_world(levelled, position, float(rpy[2])), np.asarray(position)[:2])
+
+    def far_enough(self, points_rover: np.ndarray, sensor_xyz: Sequence[float] | None) -> np.ndarray:
+        """Which returns (rover frame, ``(N, 3)`` float32) lie at least ``min_range`` from the sensor at
+        ``sensor_xyz`` (rover frame): the ones the map keeps."""
+        if sensor_xyz is None:
+            raise ValueError("SlopeShield: min_range > 0 needs the sensor's position (sensor_xyz)")
+        gap = points_rover - np.asarray(sensor_xyz, dtype=np.float32)
+        return np.einsum("ij,ij->i", gap, gap) >= np.float32(self.cfg.min_range) ** 2
 
     def steepest_deg(self, start_xy: np.ndarray, offset: np.ndarray) -> float:
         """The largest pitch or roll (degrees) the map shows along the straight drive from ``start_xy`` by

@@ -172,13 +172,14 @@ class Navigator:
     def _decide(self, p: Pose, obs: dict[str, np.ndarray], pts: np.ndarray) -> np.ndarray:
         if self.shield is None:
             return self.offset(obs)
-        # the encoding's own world points, when they are the same (every return, unfiltered)
-        fused = getattr(self.encoder, "fused_points", None) if self.shield.cfg.min_range <= 0 else None
+        fused = getattr(self.encoder, "fused_points", None)  # the encoding's own world points, if the same
+        mount = self.encoder.sensor.mount
         if fused is not None:
+            if self.shield.cfg.min_range > 0:  # the same returns, in the same order: the same mask
+                fused = fused[self.shield.far_enough(self.encoder.visible_rover_points(pts), mount)]
             self.shield.observe(fused, p.xy)
         else:
             rpy = (p.roll, p.pitch, p.yaw)
-            mount = self.encoder.sensor.mount
             self.shield.observe_rover(self.encoder.visible_rover_points(pts), (p.x, p.y, p.z), rpy, mount)
         ranked = self.ranking(obs)[: self.shield.cfg.top_k]
         local = self._candidates[ranked]
