@@ -209,8 +209,7 @@ class SlopeShield:
         """At each sample ``centre`` ``(m, 2)`` of a drive along ``u`` (``n`` to its left): the larger of the
         pitch over the wheelbase and the roll across the track the map shows, as a tangent; NaN where it
         knows neither."""
-        along, across = self.half_base * u, self.half_track * n
-        probes = np.concatenate([centre + along, centre - along, centre + across, centre - across])
+        probes = self._wheel_probes(centre, u, n)
         h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
         front, rear, left, right = np.split(h, 4)
         with np.errstate(invalid="ignore"):
@@ -229,8 +228,7 @@ class SlopeShield:
         u = np.asarray(offset, dtype=np.float64) / length
         n = np.array([-u[1], u[0]])
         centre = start + np.arange(self.cfg.spacing, length + 1e-9, self.cfg.spacing)[:, None] * u
-        along, across = self.half_base * u, self.half_track * n
-        wheels = np.concatenate([centre + along, centre - along, centre + across, centre - across])
+        wheels = self._wheel_probes(centre, u, n)
         around = (centre[:, None, :] + self._footprint[None]).reshape(-1, 2)
         h, _ = self.memory.heights_at(*np.concatenate([wheels, around]).T)
         m = len(centre)
@@ -239,6 +237,12 @@ class SlopeShield:
         with np.errstate(invalid="ignore"):
             rise = top - ground
         return float(np.fmax.reduce(rise, initial=0.0))
+
+    def _wheel_probes(self, centre: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
+        """The front and rear axle centres and the left and right tracks at every sample ``centre`` ``(m, 2)`` of
+        a drive along ``u`` (``n`` to its left): ``(4 m, 2)``, in that order."""
+        along, across = self.half_base * u, self.half_track * n
+        return np.concatenate([centre + along, centre - along, centre + across, centre - across])
 
     def allows(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
         """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``, not near a hazard felt,
@@ -261,12 +265,7 @@ class SlopeShield:
         top = np.asarray(ranked, dtype=np.int64)[: self.cfg.top_k]
         offsets = np.asarray(offsets)
         # the policy's own choice first (it passes ~6 times in 7 on the Mars yard), then the rest in one lookup
-        first = offsets[top[:1]]
-        if (
-            self.steepest_many(start_xy, first)[0] <= self.cfg.limit_deg
-            and not self.near_hazard(start_xy, first)[0]
-            and not self._obstructed(start_xy, first[0])
-        ):
+        if self.allows(start_xy, offsets[top[0]]):
             return int(top[0])
         rest = offsets[top[1:]]
         ok = (self.steepest_many(start_xy, rest) <= self.cfg.limit_deg) & ~self.near_hazard(start_xy, rest)
