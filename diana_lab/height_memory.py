@@ -60,12 +60,12 @@ class HeightMemory:
         self.origin = None
 
     def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Flat cell index of world points and whether they lie on the map."""
-        inv = 1.0 / self.cell_size
-        ix = np.floor((x - self.origin[0]) * inv).astype(np.int64)
-        iy = np.floor((y - self.origin[1]) * inv).astype(np.int64)
-        inside = (ix >= 0) & (ix < self.n) & (iy >= 0) & (iy < self.n)
-        return iy * self.n + ix, inside
+        """Flat cell index of world points (meaningful only where they lie on the map) and whether they do."""
+        inv, n = 1.0 / self.cell_size, self.n
+        fx = np.floor((x - self.origin[0]) * inv)  # whole numbers as floats: one conversion to int at the end
+        fy = np.floor((y - self.origin[1]) * inv)
+        inside = (fx >= 0) & (fx < n) & (fy >= 0) & (fy < n)
+        return (fy * n + fx).astype(np.int64), inside
 
     def update(self, points: np.ndarray, centre: np.ndarray) -> None:
         """Fuse one frame: ``points`` ``(N, 3)`` in the world frame; ``centre`` the rover's world xy (it
@@ -75,8 +75,11 @@ class HeightMemory:
         if len(points) == 0:
             return
         cell, inside = self._cells(points[:, 0], points[:, 1])
-        cell, z = cell[inside], points[inside, 2].astype(np.float32)
-        np.maximum.at(self._top, cell, z)  # this frame's highest point per cell
+        z = points[:, 2]
+        if not inside.all():  # usually all are: the map reaches far beyond the sensor
+            keep = np.flatnonzero(inside)
+            cell, z = cell.take(keep), z.take(keep)
+        np.maximum.at(self._top, cell, z.astype(np.float32, copy=False))  # this frame's highest point per cell
         # repeated cells all copy the same maximum, so no np.unique (a third of the update's time)
         self.height[cell] = self._top[cell]
         self._top[cell] = -np.inf
@@ -90,22 +93,22 @@ class HeightMemory:
         if self.origin is None:
             return np.full(x.shape, np.nan), np.zeros(x.shape, dtype=bool)
         n, size, flat = self.n, self.cell_size, self.height  # flat [iy * n + ix], float32
-        f = (np.stack([x, y]) - self.origin.reshape((2,) + (1,) * x.ndim)) / size  # [0] x, [1] y, in cells
-        i = np.floor(f).astype(np.int64)
-        inside = ((i >= 0) & (i < n)).all(axis=0)
-        ic = np.clip(i, 0, n - 1)
-        u = f - 0.5  # cell-centre coordinates
-        j = np.floor(u).astype(np.int64)
-        t = u - j
-        ok = ((j >= 0) & (j < n - 1)).all(axis=0)
-        jc = np.clip(j, 0, max(n - 2, 0))
-        corner = jc[1] * n + jc[0]
+        # per axis, in whole numbers held as floats (fewer array operations: this runs on every shield decision)
+        fx, fy = (x - self.origin[0]) / size, (y - self.origin[1]) / size  # in cells
+        ix, iy = np.floor(fx), np.floor(fy)
+        inside = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
+        ux, uy = fx - 0.5, fy - 0.5  # cell-centre coordinates
+        jx, jy = np.floor(ux), np.floor(uy)
+        tx, ty = ux - jx, uy - jy
+        ok = (jx >= 0) & (jx < n - 1) & (jy >= 0) & (jy < n - 1)
+        last, corner_last = n - 1, max(n - 2, 0)
+        own_cell = np.fmin(np.fmax(iy, 0), last) * n + np.fmin(np.fmax(ix, 0), last)  # fmax: NaN -> 0
+        corner = np.fmin(np.fmax(jy, 0), corner_last) * n + np.fmin(np.fmax(jx, 0), corner_last)
         step = min(1, n - 1)  # the next cell right (and a row up: step * n); none on a 1-cell map
         # one gather, widening only the cells read: the point's own cell and the four around it
-        cells = np.stack([ic[1] * n + ic[0], corner, corner + step, corner + step * n, corner + step * n + step])
-        h = flat.take(cells).astype(np.float64)
+        cells = np.stack([own_cell, corner, corner + step, corner + step * n, corner + step * n + step])
+        h = flat.take(cells.astype(np.int64)).astype(np.float64)
         own = np.where(inside, h[0], np.nan)
-        tx, ty = t[0], t[1]
         bilinear = (1 - ty) * ((1 - tx) * h[1] + tx * h[2]) + ty * ((1 - tx) * h[3] + tx * h[4])
         known = np.isfinite(own)
         height = np.where(ok & np.isfinite(bilinear), bilinear, own)

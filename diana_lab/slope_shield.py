@@ -194,16 +194,38 @@ class SlopeShield:
 
     def _steepest_one(self, start: np.ndarray, offset: np.ndarray) -> float:
         """:meth:`steepest_many` of one drive, with the same probes to the bit."""
+        return float(np.degrees(np.arctan(self._probe_one(start, offset, obstacles=False)[0])))
+
+    def _probe_one(self, start: np.ndarray, offset: np.ndarray, obstacles: bool) -> tuple[float, float]:
+        """One drive's steepest tilt (a tangent, :meth:`_sample_tilts`' largest; 0 where nothing is known) and,
+        with ``obstacles``, what rises above the wheels (:meth:`obstacle_m`), from one map lookup: the wheel
+        probes at every sample serve both checks (a decision is timed onboard; the lookup is most of it)."""
         length = float(np.hypot(offset[0], offset[1]))
         if length < 1e-9:
-            return 0.0
+            return 0.0, 0.0
         s = self._samples.get(length)
         if s is None:
             s = self._samples[length] = np.arange(0.0, length + 1e-9, self.cfg.spacing)[:, None]
-        u = offset / length
-        tilt = self._sample_tilts(start + s * u, u, np.array([-u[1], u[0]]))
-        worst = np.fmax.reduce(tilt, initial=0.0)  # NaN (unknown) drops out; all unknown: 0
-        return float(np.degrees(np.arctan(worst)))
+        u = np.asarray(offset, dtype=np.float64) / length
+        centre = start + s * u
+        probes = self._wheel_probes(centre, u, np.array([-u[1], u[0]]))
+        m = len(centre)
+        if obstacles:  # the footprint around every sample but the rover's own place
+            around = (centre[1:, None, :] + self._footprint[None]).reshape(-1, 2)
+            probes = np.concatenate([probes, around])
+        h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
+        wheels = h[: 4 * m].reshape(4, m)
+        with np.errstate(invalid="ignore"):
+            tilt = np.fmax(
+                np.abs(wheels[0] - wheels[1]) / (2.0 * self.half_base),
+                np.abs(wheels[2] - wheels[3]) / (2.0 * self.half_track),
+            )
+            worst = float(np.fmax.reduce(tilt, initial=0.0))  # NaN (unknown) drops out; all unknown: 0
+            if not obstacles or m < 2:
+                return worst, 0.0
+            ground = np.fmax.reduce(wheels[:, 1:], axis=0)  # NaN only where no wheel probe is known
+            top = np.fmax.reduce(h[4 * m :].reshape(m - 1, -1), axis=1)
+            return worst, float(np.fmax.reduce(top - ground, initial=0.0))
 
     def _sample_tilts(self, centre: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
         """At each sample ``centre`` ``(m, 2)`` of a drive along ``u`` (``n`` to its left): the larger of the
@@ -219,24 +241,12 @@ class SlopeShield:
 
     def obstacle_m(self, start_xy: np.ndarray, offset: np.ndarray) -> float:
         """The most the map shows anything within the rover's footprint rising above its highest wheel probe
-        (front and rear axle centres, left and right tracks) along the straight drive (m; 0 where it knows
-        nothing): a rock between or beside the wheels that the tilt check cannot see. 0 with the check off."""
-        length = float(np.hypot(offset[0], offset[1]))
-        if self.cfg.obstacle_height <= 0 or length < 1e-9:
+        (front and rear axle centres, left and right tracks) along the straight drive, every ``spacing`` m
+        after the start (m; 0 where it knows nothing): a rock between or beside the wheels that the tilt check
+        cannot see. 0 with the check off."""
+        if self.cfg.obstacle_height <= 0:
             return 0.0
-        start = np.asarray(start_xy, dtype=np.float64)[:2]
-        u = np.asarray(offset, dtype=np.float64) / length
-        n = np.array([-u[1], u[0]])
-        centre = start + np.arange(self.cfg.spacing, length + 1e-9, self.cfg.spacing)[:, None] * u
-        wheels = self._wheel_probes(centre, u, n)
-        around = (centre[:, None, :] + self._footprint[None]).reshape(-1, 2)
-        h, _ = self.memory.heights_at(*np.concatenate([wheels, around]).T)
-        m = len(centre)
-        ground = np.fmax.reduce(h[: 4 * m].reshape(4, m), axis=0)  # NaN only where no wheel probe is known
-        top = np.fmax.reduce(h[4 * m :].reshape(m, -1), axis=1)
-        with np.errstate(invalid="ignore"):
-            rise = top - ground
-        return float(np.fmax.reduce(rise, initial=0.0))
+        return self._probe_one(np.asarray(start_xy, dtype=np.float64)[:2], offset, obstacles=True)[1]
 
     def _wheel_probes(self, centre: np.ndarray, u: np.ndarray, n: np.ndarray) -> np.ndarray:
         """The front and rear axle centres and the left and right tracks at every sample ``centre`` ``(m, 2)`` of
@@ -246,11 +256,14 @@ class SlopeShield:
 
     def allows(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
         """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``, not near a hazard felt,
-        and no obstacle in the footprint above ``obstacle_height``)."""
+        and no obstacle in the footprint above ``obstacle_height``): one map lookup for both map checks."""
+        start = np.asarray(start_xy, dtype=np.float64)[:2]
+        check_obstacles = self.cfg.obstacle_height > 0
+        tilt, rise = self._probe_one(start, np.asarray(offset, dtype=np.float64), check_obstacles)
         return (
-            self.steepest_deg(start_xy, offset) <= self.cfg.limit_deg
-            and not self.near_hazard(start_xy, offset)[0]
-            and not self._obstructed(start_xy, offset)
+            float(np.degrees(np.arctan(tilt))) <= self.cfg.limit_deg
+            and not self.near_hazard(start, offset)[0]
+            and not (check_obstacles and rise > self.cfg.obstacle_height)
         )
 
     def _obstructed(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:

@@ -115,6 +115,35 @@ def test_a_rock_beside_the_tracks_is_an_obstacle_the_tilt_check_alone_lets_throu
     assert s.obstacle_m(np.array([5.0, 5.0]), through) == 0.0  # nothing known of that way: passes
 
 
+def test_one_lookup_for_both_checks_gives_the_verdicts_of_each_check_alone():
+    """allows() reads the tilt and the obstacle rise from one map lookup; on rough, partly seen ground its
+    verdict for every candidate drive is the one the separate checks (steepest_deg, obstacle_m) give."""
+    rng = np.random.default_rng(3)
+    heights, centres = rng.uniform(0.0, 0.25, 40), rng.uniform(-5.0, 5.0, (40, 2))
+
+    def rough(x, y):
+        z = 0.15 * np.sin(0.9 * x) * np.cos(0.7 * y)
+        for (cx, cy), h in zip(centres, heights):
+            z = np.where(np.hypot(x - cx, y - cy) < 0.25, z + h, z)
+        return z
+
+    s = shield(obstacle_height=0.08, limit_deg=12.0)
+    pts = ground(rough)
+    s.observe(pts[pts[:, 0] < 3.0], np.zeros(2))  # beyond x = 3 m: never seen
+    angles = np.linspace(0.0, 2.0 * np.pi, 32, endpoint=False)
+    verdicts, by_rise = [], []
+    for start in rng.uniform(-3.0, 3.0, (6, 2)):
+        for length in (1.0, 2.0, 3.0):
+            for a in angles:
+                offset = length * np.array([math.cos(a), math.sin(a)])
+                level, low = s.steepest_deg(start, offset) <= 12.0, s.obstacle_m(start, offset) <= 0.08
+                assert s.allows(start, offset) == (level and low)
+                verdicts.append(level and low)
+                by_rise.append(level and not low)
+    assert 0.2 < np.mean(verdicts) < 0.8  # the ground vetoes some drives and lets others through
+    assert np.mean(by_rise) > 0.05  # and some only for what rises above the wheels
+
+
 def test_returns_near_the_sensor_are_left_out_of_the_map_with_min_range():
     """A dust return 0.6 m from the sensor, floating 0.3 m above the ground beside the rover, would read as a
     ledge under the next drive; with min_range 1 m it is not mapped (the ground farther out still is)."""
