@@ -215,14 +215,10 @@ class SlopeShield:
             probes = np.concatenate([probes, around])
         h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
         wheels = h[: 4 * m].reshape(4, m)
+        worst = float(np.fmax.reduce(self._tilts(wheels), initial=0.0))  # NaN (unknown) drops out; all unknown: 0
+        if not obstacles or m < 2:
+            return worst, 0.0
         with np.errstate(invalid="ignore"):
-            tilt = np.fmax(
-                np.abs(wheels[0] - wheels[1]) / (2.0 * self.half_base),
-                np.abs(wheels[2] - wheels[3]) / (2.0 * self.half_track),
-            )
-            worst = float(np.fmax.reduce(tilt, initial=0.0))  # NaN (unknown) drops out; all unknown: 0
-            if not obstacles or m < 2:
-                return worst, 0.0
             ground = np.fmax.reduce(wheels[:, 1:], axis=0)  # NaN only where no wheel probe is known
             top = np.fmax.reduce(h[4 * m :].reshape(m - 1, -1), axis=1)
             return worst, float(np.fmax.reduce(top - ground, initial=0.0))
@@ -232,8 +228,13 @@ class SlopeShield:
         pitch over the wheelbase and the roll across the track the map shows, as a tangent; NaN where it
         knows neither."""
         probes = self._wheel_probes(centre, u, n)
-        h, _ = self.memory.heights_at(probes[:, 0], probes[:, 1])
-        front, rear, left, right = np.split(h, 4)
+        return self._tilts(self.memory.heights_at(probes[:, 0], probes[:, 1])[0].reshape(4, -1))
+
+    def _tilts(self, wheels: np.ndarray) -> np.ndarray:
+        """The map's heights under the wheel probes, ``(4, m)`` (:meth:`_wheel_probes`' order) -> the larger of the
+        pitch over the wheelbase and the roll across the track at each sample, as a tangent; NaN where neither
+        is known."""
+        front, rear, left, right = wheels
         with np.errstate(invalid="ignore"):
             return np.fmax(
                 np.abs(front - rear) / (2.0 * self.half_base), np.abs(left - right) / (2.0 * self.half_track)
