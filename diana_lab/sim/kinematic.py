@@ -29,7 +29,7 @@ import numpy as np
 
 from diana_lab.config.sim import KinematicConfig, RobotConfig
 from diana_lab.sim.controller import TurnThenDrive, wrap_angle
-from diana_lab.sim.state import RoverState, WaypointResult, tilt_deg, turn_hazard_offset
+from diana_lab.sim.state import RoverState, WaypointResult, hazard_ahead, tilt_deg
 from diana_lab.sim.world import World
 
 PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
@@ -201,7 +201,7 @@ class KinematicDynamics:
         if outcome in ("stuck", "halted") and first >= m:
             result.hazard_xy = xy[first].copy()
         elif outcome in ("stuck", "halted"):  # while turning in place: that way is barred from here, so mark it ahead
-            result.hazard_xy = xy[0] + turn_hazard_offset(robot.length, float(yaws[-1]))
+            result.hazard_xy = xy[0] + hazard_ahead(robot.length, float(yaws[-1]))
         return result
 
     def _finish(

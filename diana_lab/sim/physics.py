@@ -42,7 +42,7 @@ import pybullet as pb
 from diana_lab.config.sim import PhysicsConfig, RobotConfig
 from diana_lab.sim.controller import TurnThenDrive, wrap_angle
 from diana_lab.sim.pybullet_scene import PybulletScene
-from diana_lab.sim.state import Outcome, RoverState, WaypointResult, tilt_deg, turn_hazard_offset
+from diana_lab.sim.state import Outcome, RoverState, WaypointResult, hazard_ahead, tilt_deg
 from diana_lab.sim.world import World
 
 PoseEstimate = Callable[[RoverState], tuple[np.ndarray, float]]
@@ -302,7 +302,7 @@ class PhysicsDynamics:
                 if phase != "drive" or drive_from is None:  # turning in place: stop where it stands
                     outcome, detail = "halted", trip
                     heading = math.atan2(waypoint[1] - est_xy[1], waypoint[0] - est_xy[0])
-                    hazard = np.array([x, y]) + turn_hazard_offset(self.robot.length, heading)
+                    hazard = np.array([x, y]) + hazard_ahead(self.robot.length, heading)
                     break
                 hazard = np.array([x, y])
                 retreat = (x, y, min(self.robot.guard_retreat, math.hypot(x - drive_from[0], y - drive_from[1])))
@@ -314,8 +314,7 @@ class PhysicsDynamics:
             elif elapsed - anchor_t >= cfg.stuck_window_s:
                 outcome, detail = "stuck", f"moved {progress:.2f} m in {elapsed - anchor_t:.1f} s"
                 if retreat is None and phase == "drive":  # the ground ahead held it
-                    ahead = 0.5 * self.robot.length
-                    hazard = np.array([x + ahead * math.cos(yaw), y + ahead * math.sin(yaw)])
+                    hazard = np.array([x, y]) + hazard_ahead(self.robot.length, yaw)
                 break
             if pose_estimate:
                 est_xy, est_yaw = pose_estimate(

@@ -102,8 +102,9 @@ class WaypointResult:
         return float(self.trace_tilt_deg.max()) if len(self.trace_tilt_deg) else 0.0
 
 
-def turn_hazard_offset(length: float, heading: float) -> np.ndarray:
-    """Where a tilt-guard halt while turning in place towards ``heading`` (rad) is reported, relative to the
-    rover: half its ``length`` that way. The spot is not steep itself; reporting it keeps the slope shield from
-    sending the rover that way again from here, which is what the guard learnt."""
+def hazard_ahead(length: float, heading: float) -> np.ndarray:
+    """Where ground the rover could not drive is reported, relative to the rover, when it met it without
+    reaching it (a tilt-guard halt or a slope while turning in place, a slope holding it while driving): half
+    its ``length`` towards ``heading`` (rad). The spot may not be steep itself; reporting it keeps the slope
+    shield from sending the rover that way again from here, which is what the wheels learnt."""
     return 0.5 * length * np.array([math.cos(heading), math.sin(heading)])
