@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from diana_lab.config.sensing import DepthCameraConfig
+from diana_lab.sensing.pinhole import Pinhole
 from diana_lab.sensing.sensor import RaySensor
 
 __all__ = ["DepthCamera", "pinhole_pattern"]
@@ -33,6 +34,11 @@ class DepthCamera(RaySensor):
     def pattern(self) -> np.ndarray:
         c = self.cfg
         return pinhole_pattern(c.width, c.height, c.hfov_deg, c.vfov_deg)
+
+    def pinhole(self, mount_rotation: np.ndarray) -> Pinhole:
+        c = self.cfg
+        tan_h, tan_v = math.tan(math.radians(c.hfov_deg) / 2.0), math.tan(math.radians(c.vfov_deg) / 2.0)
+        return Pinhole(c.width, c.height, tan_h, tan_v, mount_rotation)
 
     def optical_axis_cos(self, pattern: np.ndarray) -> np.ndarray:
         return pattern[..., 0].astype(np.float32)  # x component of a unit vector = cos to the +x axis

@@ -5,7 +5,9 @@ one core) cannot be met with open3d's ``RaycastingScene``: ``cast_rays`` takes 0
 rays against the 131k-triangle Mars yard and ~0.15 ms even against a 2-triangle plane (per-call floor). The
 terrain is a regular grid, so a walk through its cells finds the few triangles a ray can hit without any
 acceleration structure: it casts a 64 x 48 frame on the yard in about half open3d's time (numbers, and what
-did not help: :data:`SPEED`).
+did not help: :data:`SPEED`). A depth camera's frame goes faster still: the terrain near the sensor, where most
+of its rays end, is rasterised into the image with this walk's own tests (:mod:`diana_lab.sensing.pinhole_raster`,
+the same ranges bit for bit), and only the rays that hit nothing there are walked, from where they leave it.
 
 Exact: it intersects the very triangles of ``World.scene_mesh`` (the two per cell of :attr:`Terrain.mesh`,
 split from ``(ix + 1, iy)`` to ``(ix, iy + 1)``, at the mesh's float32 vertex coordinates; the obstacles'
@@ -48,11 +50,15 @@ from __future__ import annotations
 import math
 import weakref
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
 
 from diana_lab.sim.world import World
+
+if TYPE_CHECKING:
+    from diana_lab.sensing.pinhole import Pinhole
 
 __all__ = [
     "BLOCK_SHIFT",
@@ -101,6 +107,11 @@ Tried, too little to keep: per-cell plane coefficients precomputed (the test the
 vertex coordinates (not exact on a non-uniform grid) 0.984x; rays in column-major order 0.986x; 4 x 4 / 16 x 16
 blocks 1.053x / 1.006x. The frame's point cloud, written by the kernel as it goes (``points``), costs ~1 ns a ray
 (the numpy form, from the ranges afterwards, ~60 us a frame).
+Then (session 13, another machine: AMD EPYC, where the frame above took 0.32 ms cast alone and sensor_ms was
+0.338 ms, open3d's bare cast_rays 0.53 ms against the 0.4 ms the issue quotes): the near field rasterised for
+pinhole cameras (diana_lab.sensing.pinhole_raster): cast 0.315 -> 0.19 ms a frame, sensor_ms 0.338 -> 0.23 ms,
+sensor_ms_112 1.14 -> 0.78 ms; the rays it leaves (about a fifth: hits beyond its box, misses) are walked from
+the box's edge.
 Compile: ~4 s the first time (2.9 s terrain + 1.1 s obstacle kernel), then cached; 0.4 s on first use per process.
 Each form compiles apart, on first use (under load: the (N, 6) form 4.0 s, the pose form 3.7 s, with the window
 2.7 s, pose_rays 1.6 s), then cached.
@@ -135,6 +146,7 @@ class HeightfieldScene:
     ob_start: np.ndarray
     ob_box: np.ndarray
     ob_sphere: np.ndarray
+    min_cell: float  # the narrowest cell's width or depth (m)
 
     @classmethod
     def from_world(cls, world: World, shift: int = BLOCK_SHIFT) -> HeightfieldScene:
@@ -183,6 +195,7 @@ class HeightfieldScene:
             ob_start=np.array(start, dtype=np.int64),
             ob_box=np.array(boxes, dtype=np.float64).reshape(-1, 6),
             ob_sphere=np.array(spheres, dtype=np.float64).reshape(-1, 4),
+            min_cell=float(min(np.diff(xs).min(), np.diff(ys).min())),
         )
 
     @property
@@ -201,6 +214,7 @@ class HeightfieldScene:
         rotation: np.ndarray,
         max_range: float = math.inf,
         min_range: float | None = None,
+        pinhole: Pinhole | None = None,
     ) -> np.ndarray:
         """:meth:`cast` of the rays ``directions (N, 3)`` (float32, C-contiguous, unit, body frame) rotated by
         ``rotation (3, 3)`` and starting at ``origin (3,)`` (world frame, float64): the pose transform is done
@@ -210,9 +224,12 @@ class HeightfieldScene:
 
         With ``min_range`` the result is a sensor's: NaN for no hit and for a (float32) range outside
         ``[min_range, max_range]`` (compared in float32, as numpy compares a float32 array with Python
-        floats), so the caller needs no masking pass."""
+        floats), so the caller needs no masking pass.
+
+        With ``pinhole`` (the camera the directions are the pixel rays of) the terrain near the sensor is
+        rasterised (:mod:`diana_lab.sensing.pinhole_raster`): the same ranges, bit for bit, in less time."""
         lo = None if min_range is None else float(min_range)
-        return self._cast(directions, origin, rotation, float(max_range), lo)[0]
+        return self._cast(directions, origin, rotation, float(max_range), lo, pinhole=pinhole)[0]
 
     def cast_frame(
         self,
@@ -222,14 +239,17 @@ class HeightfieldScene:
         mount: np.ndarray,
         max_range: float,
         min_range: float,
+        pinhole: Pinhole | None = None,
     ) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`cast_pose` with ``min_range`` (a sensor's ranges, NaN for no return), and the returns as the
         sensor's point cloud in the body frame: ``(M, 3)`` float32 ``directions * range + mount`` (``mount
         (3,)`` float32, the sensor's position on the body) of the rays with a return, in ray order, exactly
         as numpy computes it in float32 (:attr:`SensorFrame.points`), written by the cast itself.
-        The cloud is a view of the first ``M`` rows of an ``(N, 3)`` buffer."""
+        The cloud is a view of the first ``M`` rows of an ``(N, 3)`` buffer. ``pinhole``: as in :meth:`cast_pose`."""
         cloud = np.empty((directions.shape[0], 3), dtype=np.float32)
-        ranges, m = self._cast(directions, origin, rotation, float(max_range), float(min_range), cloud, mount)
+        ranges, m = self._cast(
+            directions, origin, rotation, float(max_range), float(min_range), cloud, mount, pinhole=pinhole
+        )
         return ranges, cloud[:m]
 
     def _cast(
@@ -241,6 +261,7 @@ class HeightfieldScene:
         min_range: float | None,
         points: np.ndarray | None = None,
         mount: np.ndarray | None = None,
+        pinhole: Pinhole | None = None,
     ) -> tuple[np.ndarray, int]:
         if self.n_obstacles:
             first = cast_obstacles(
@@ -256,6 +277,9 @@ class HeightfieldScene:
             )
         else:
             first = _NONE
+        near_best, near_box = None, _NO_BOX
+        if pinhole is not None and origin is not None:
+            near_best, near_box = self._raster(rays, origin, rotation, pinhole)
         return cast_terrain(
             rays,
             origin,
@@ -273,10 +297,37 @@ class HeightfieldScene:
             min_range,
             points,
             mount,
+            near_best,
+            near_box,
         )
+
+    def _raster(
+        self, directions: np.ndarray, origin: np.ndarray, rotation: np.ndarray, pinhole: Pinhole
+    ) -> tuple[np.ndarray | None, np.ndarray]:
+        """The near field's hits (:func:`~diana_lab.sensing.pinhole_raster.raster_near`) and its box; ``None``
+        and an empty box where the raster does not apply (cells narrower than its ``DELTA``, the sensor off
+        the map or down at the terrain)."""
+        from diana_lab.sensing.pinhole_raster import DELTA, REACH_M, raster_near  # (it imports this module)
+
+        if self.min_cell <= DELTA:
+            return None, _NO_BOX
+        best, box = raster_near(
+            directions,
+            origin,
+            rotation,
+            pinhole.mount_rotation,
+            pinhole.params,
+            REACH_M,
+            self.xs,
+            self.ys,
+            self.heights,
+            self.cell_max,
+        )
+        return (None, _NO_BOX) if box[0] > box[1] else (best, box)
 
 
 _NONE = np.zeros(0)  # cast_terrain's "no obstacle hits"
+_NO_BOX = np.array([0, -1, 0, -1], dtype=np.int64)  # cast_terrain's "nothing rasterised"
 _SCENES: weakref.WeakKeyDictionary[World, HeightfieldScene] = weakref.WeakKeyDictionary()
 
 
@@ -480,6 +531,8 @@ def cast_terrain(
     lo,
     points,
     mount,
+    near_best,
+    near_box,
 ):  # pragma: no cover (numba)
     """Nearest hit of every ray on the terrain, or on an obstacle if ``first[i]`` (obstacle hit distances;
     empty: none) is nearer: ``(N,)`` float32, ``inf`` for no hit within ``max_range``; and how many rows of
@@ -491,7 +544,10 @@ def cast_terrain(
     With ``points (N, 3)`` float32 as well (a pose and ``lo`` only) the returns are also written there as the
     sensor's point cloud in the body frame, ``directions[i] * range + mount`` (``mount (3,)`` float32) in
     float32 as numpy computes it, in ray order, each ray to the next free row (a return advances it): the
-    frame's cloud without a second pass over the rays."""
+    frame's cloud without a second pass over the rays. With ``near_best`` (a pose only; None: compiled apart), the
+    rays' nearest terrain hits within the cell box ``near_box`` (``ix_lo, ix_hi, iy_lo, iy_hi``) that
+    :func:`~diana_lab.sensing.pinhole_raster.raster_near` found (``inf``: none there): a ray with one is done,
+    the others are walked from where they leave the box."""
     n = rays.shape[0]
     r00 = r01 = r02 = r10 = r11 = r12 = r20 = r21 = r22 = pose_x = pose_y = pose_z = 0.0
     if rotation is not None:  # a pose (None: the rays carry origins and directions); compiled apart
@@ -523,145 +579,159 @@ def cast_terrain(
             ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
             dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
         best = first[i] if has_first else np.inf
-        # clip to the map's box, the terrain's height range, the range limit and the obstacle hit
-        step_x = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
-        step_y = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
-        inv_dx = 1.0 / dx if dx != 0.0 else 0.0
-        inv_dy = 1.0 / dy if dy != 0.0 else 0.0
-        t0, t1 = 0.0, min(t_lim, best)
-        if step_x != 0:
-            ta, tb = (x_lo - ox) * inv_dx, (x_hi - ox) * inv_dx
-            t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
-        elif ox < x_lo or ox > x_hi:
-            t1 = -1.0
-        if step_y != 0:
-            ta, tb = (y_lo - oy) * inv_dy, (y_hi - oy) * inv_dy
-            t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
-        elif oy < y_lo or oy > y_hi:
-            t1 = -1.0
-        if dz != 0.0:
-            inv_dz = 1.0 / dz
-            ta, tb = (z_lo - oz) * inv_dz, (z_hi - oz) * inv_dz
-            t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
-        elif oz < z_lo or oz > z_hi:
-            t1 = -1.0
-        if t0 <= t1:
-            off_x = 1 if step_x > 0 else 0
-            off_y = 1 if step_y > 0 else 0
-            # the first cell (t0 may sit on the map's edge: clamped into it)
-            if t0 == 0.0 and ox == home_x and oy == home_y:
-                ix, iy = home_ix, home_iy
-            else:
-                px, py = ox + t0 * dx, oy + t0 * dy
-                ix = _guess(px, x_lo, per_mx, 0, ncx - 1)
-                while ix > 0 and xs[_u(ix)] > px:
-                    ix -= 1
-                while ix < ncx - 1 and xs[_u(ix + 1)] < px:
-                    ix += 1
-                iy = _guess(py, y_lo, per_my, 0, ncy - 1)
-                while iy > 0 and ys[_u(iy)] > py:
-                    iy -= 1
-                while iy < ncy - 1 and ys[_u(iy + 1)] < py:
-                    iy += 1
-                if t0 == 0.0:
-                    home_x, home_y, home_ix, home_iy = ox, oy, ix, iy
-            bx, by = ix >> shift, iy >> shift
-            t_enter, z_enter = t0, oz + dz * t0
-            # the block DDA: the ray's exits from the current block (its far edges) on either axis
-            offb_x = 1 if step_x > 0 else 0
-            offb_y = 1 if step_y > 0 else 0
-            tbx = (xs[_u(min((bx + offb_x) << shift, ncx))] - ox) * inv_dx if step_x != 0 else np.inf
-            tby = (ys[_u(min((by + offb_y) << shift, ncy))] - oy) * inv_dy if step_y != 0 else np.inf
-            entered = 0  # how the ray entered the block: 0 first block (ix, iy known), 1 x edge, 2 y edge
-            while True:
-                t_exit = min(tbx, tby, t1)
-                z_exit = oz + dz * t_exit
-                if min(z_enter, z_exit) <= block_max[_u(by * nbx + bx)]:
-                    # walk this block's cells; test those the ray does not pass above
-                    cx0, cy0 = bx << shift, by << shift
-                    cx1, cy1 = min(cx0 + (1 << shift), ncx) - 1, min(cy0 + (1 << shift), ncy) - 1
-                    if entered == 1:  # through its near x edge: locate the row there (in the block)
-                        ix = cx0 if step_x > 0 else cx1
-                        py = oy + t_enter * dy
-                        iy = _guess(py, y_lo, per_my, cy0, cy1)
-                        while iy > cy0 and ys[_u(iy)] > py:
-                            iy -= 1
-                        while iy < cy1 and ys[_u(iy + 1)] < py:
-                            iy += 1
-                    elif entered == 2:
-                        iy = cy0 if step_y > 0 else cy1
-                        px = ox + t_enter * dx
-                        ix = _guess(px, x_lo, per_mx, cx0, cx1)
-                        while ix > cx0 and xs[_u(ix)] > px:
-                            ix -= 1
-                        while ix < cx1 and xs[_u(ix + 1)] < px:
-                            ix += 1
-                    tmax_x = (xs[_u(ix + off_x)] - ox) * inv_dx if step_x != 0 else np.inf
-                    tmax_y = (ys[_u(iy + off_y)] - oy) * inv_dy if step_y != 0 else np.inf
-                    k = iy * ncx + ix
-                    z_prev, t_in = z_enter, t_enter  # the ray's height and t entering the cell
-                    hit = False
-                    while True:
-                        tc = min(tmax_x, tmax_y, t_exit)
-                        z_c = oz + dz * tc
-                        if min(z_prev, z_c) <= cell_max[_u(k)]:
-                            # the cell's triangles (a, b, c) and (d, c, b) of Terrain.mesh, a = (x0, y0), d = (x1, y1).
-                            # In [t_in, tc] the ray is over the cell, so it hits a triangle where it crosses
-                            # its plane at a t in that interval on the triangle's side of the diagonal. Heights
-                            # above the planes times w h are A + t B; the tests multiply through by |B|, so the
-                            # branch waits on no division (the division only gives the distance of a hit).
-                            kv = iy * nx + ix
-                            x0, x1, y0, y1 = xs[_u(ix)], xs[_u(ix + 1)], ys[_u(iy)], ys[_u(iy + 1)]
-                            ha, hb = hs[_u(kv)], hs[_u(kv + 1)]
-                            hc, hd = hs[_u(kv + nx)], hs[_u(kv + nx + 1)]
-                            w, h = x1 - x0, y1 - y0
-                            wh = w * h
-                            sx, sy = ox - x0, oy - y0
-                            p, q = (hb - ha) * h, (hc - ha) * w
-                            a_low, b_low = (oz - ha) * wh - sx * p - sy * q, dz * wh - dx * p - dy * q
-                            p, q = (hc - hd) * h, (hb - hd) * w
-                            a_up, b_up = (oz - hd) * wh + (sx - w) * p + (sy - h) * q, dz * wh + dx * p + dy * q
-                            g0, g1 = sx * h + sy * w - wh, dx * h + dy * w  # diagonal side at t, times w h
-                            hit_low, n_low, d_low = _crossing(a_low, b_low, t_in, tc, g0, g1, -1.0)
-                            hit_up, n_up, d_up = _crossing(a_up, b_up, t_in, tc, g0, g1, 1.0)
-                            if hit_low | hit_up:  # the first cell with a hit holds the nearest one
-                                t_low = n_low / d_low if hit_low else np.inf
-                                best = min(best, t_low, n_up / d_up if hit_up else np.inf)
-                                hit = True
-                                break
-                        if tc >= t_exit:
-                            break
-                        z_prev, t_in = z_c, tc
-                        if tmax_x < tmax_y:
-                            ix += step_x
-                            if ix < cx0 or ix > cx1:
-                                break
-                            k += step_x
-                            tmax_x = (xs[_u(ix + off_x)] - ox) * inv_dx
-                        else:
-                            iy += step_y
-                            if iy < cy0 or iy > cy1:
-                                break
-                            k += step_y * ncx
-                            tmax_y = (ys[_u(iy + off_y)] - oy) * inv_dy
-                    if hit:
-                        break
-                if t_exit >= t1:
-                    break
-                # the next block
-                t_enter, z_enter = t_exit, z_exit  # t_exit < t1 here: the nearer of tbx and tby
-                if tbx < tby:
-                    bx += step_x
-                    if bx < 0 or bx >= nbx:
-                        break
-                    tbx = (xs[_u(min((bx + offb_x) << shift, ncx))] - ox) * inv_dx
-                    entered = 1
+        near = np.inf
+        if near_best is not None:
+            near = near_best[i]
+        if near < np.inf:  # the raster found its nearest terrain hit (pinhole_raster)
+            best = min(best, near)
+        else:
+            # clip to the map's box, the terrain's height range, the range limit and the obstacle hit
+            step_x = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
+            step_y = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
+            inv_dx = 1.0 / dx if dx != 0.0 else 0.0
+            inv_dy = 1.0 / dy if dy != 0.0 else 0.0
+            t0, t1 = 0.0, min(t_lim, best)
+            if step_x != 0:
+                ta, tb = (x_lo - ox) * inv_dx, (x_hi - ox) * inv_dx
+                t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+            elif ox < x_lo or ox > x_hi:
+                t1 = -1.0
+            if step_y != 0:
+                ta, tb = (y_lo - oy) * inv_dy, (y_hi - oy) * inv_dy
+                t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+            elif oy < y_lo or oy > y_hi:
+                t1 = -1.0
+            if dz != 0.0:
+                inv_dz = 1.0 / dz
+                ta, tb = (z_lo - oz) * inv_dz, (z_hi - oz) * inv_dz
+                t0, t1 = max(t0, min(ta, tb)), min(t1, max(ta, tb))
+            elif oz < z_lo or oz > z_hi:
+                t1 = -1.0
+            if near_best is not None:  # no hit in the rasterised box: the walk starts where the ray leaves it
+                t_box = np.inf
+                if step_x != 0:
+                    t_box = (xs[_u(near_box[1] + 1 if step_x > 0 else near_box[0])] - ox) * inv_dx
+                if step_y != 0:
+                    t_box = min(t_box, (ys[_u(near_box[3] + 1 if step_y > 0 else near_box[2])] - oy) * inv_dy)
+                t0 = max(t0, t_box)
+            if t0 <= t1:
+                off_x = 1 if step_x > 0 else 0
+                off_y = 1 if step_y > 0 else 0
+                # the first cell (t0 may sit on the map's edge: clamped into it)
+                if t0 == 0.0 and ox == home_x and oy == home_y:
+                    ix, iy = home_ix, home_iy
                 else:
-                    by += step_y
-                    if by < 0 or by >= nby:
+                    px, py = ox + t0 * dx, oy + t0 * dy
+                    ix = _guess(px, x_lo, per_mx, 0, ncx - 1)
+                    while ix > 0 and xs[_u(ix)] > px:
+                        ix -= 1
+                    while ix < ncx - 1 and xs[_u(ix + 1)] < px:
+                        ix += 1
+                    iy = _guess(py, y_lo, per_my, 0, ncy - 1)
+                    while iy > 0 and ys[_u(iy)] > py:
+                        iy -= 1
+                    while iy < ncy - 1 and ys[_u(iy + 1)] < py:
+                        iy += 1
+                    if t0 == 0.0:
+                        home_x, home_y, home_ix, home_iy = ox, oy, ix, iy
+                bx, by = ix >> shift, iy >> shift
+                t_enter, z_enter = t0, oz + dz * t0
+                # the block DDA: the ray's exits from the current block (its far edges) on either axis
+                offb_x = 1 if step_x > 0 else 0
+                offb_y = 1 if step_y > 0 else 0
+                tbx = (xs[_u(min((bx + offb_x) << shift, ncx))] - ox) * inv_dx if step_x != 0 else np.inf
+                tby = (ys[_u(min((by + offb_y) << shift, ncy))] - oy) * inv_dy if step_y != 0 else np.inf
+                entered = 0  # how the ray entered the block: 0 first block (ix, iy known), 1 x edge, 2 y edge
+                while True:
+                    t_exit = min(tbx, tby, t1)
+                    z_exit = oz + dz * t_exit
+                    if min(z_enter, z_exit) <= block_max[_u(by * nbx + bx)]:
+                        # walk this block's cells; test those the ray does not pass above
+                        cx0, cy0 = bx << shift, by << shift
+                        cx1, cy1 = min(cx0 + (1 << shift), ncx) - 1, min(cy0 + (1 << shift), ncy) - 1
+                        if entered == 1:  # through its near x edge: locate the row there (in the block)
+                            ix = cx0 if step_x > 0 else cx1
+                            py = oy + t_enter * dy
+                            iy = _guess(py, y_lo, per_my, cy0, cy1)
+                            while iy > cy0 and ys[_u(iy)] > py:
+                                iy -= 1
+                            while iy < cy1 and ys[_u(iy + 1)] < py:
+                                iy += 1
+                        elif entered == 2:
+                            iy = cy0 if step_y > 0 else cy1
+                            px = ox + t_enter * dx
+                            ix = _guess(px, x_lo, per_mx, cx0, cx1)
+                            while ix > cx0 and xs[_u(ix)] > px:
+                                ix -= 1
+                            while ix < cx1 and xs[_u(ix + 1)] < px:
+                                ix += 1
+                        tmax_x = (xs[_u(ix + off_x)] - ox) * inv_dx if step_x != 0 else np.inf
+                        tmax_y = (ys[_u(iy + off_y)] - oy) * inv_dy if step_y != 0 else np.inf
+                        k = iy * ncx + ix
+                        z_prev, t_in = z_enter, t_enter  # the ray's height and t entering the cell
+                        hit = False
+                        while True:
+                            tc = min(tmax_x, tmax_y, t_exit)
+                            z_c = oz + dz * tc
+                            if min(z_prev, z_c) <= cell_max[_u(k)]:
+                                # the cell's triangles (a, b, c) and (d, c, b) of Terrain.mesh, a = (x0, y0),
+                                # d = (x1, y1). In [t_in, tc] the ray is over the cell, so it hits a triangle where
+                                # it crosses its plane at a t in that interval on the triangle's side of the
+                                # diagonal. Heights above the planes times w h are A + t B; the tests multiply
+                                # through by |B|, so the branch waits on no division (the division only gives the
+                                # distance of a hit).
+                                kv = iy * nx + ix
+                                x0, x1, y0, y1 = xs[_u(ix)], xs[_u(ix + 1)], ys[_u(iy)], ys[_u(iy + 1)]
+                                ha, hb = hs[_u(kv)], hs[_u(kv + 1)]
+                                hc, hd = hs[_u(kv + nx)], hs[_u(kv + nx + 1)]
+                                w, h = x1 - x0, y1 - y0
+                                wh = w * h
+                                sx, sy = ox - x0, oy - y0
+                                p, q = (hb - ha) * h, (hc - ha) * w
+                                a_low, b_low = (oz - ha) * wh - sx * p - sy * q, dz * wh - dx * p - dy * q
+                                p, q = (hc - hd) * h, (hb - hd) * w
+                                a_up, b_up = (oz - hd) * wh + (sx - w) * p + (sy - h) * q, dz * wh + dx * p + dy * q
+                                g0, g1 = sx * h + sy * w - wh, dx * h + dy * w  # diagonal side at t, times w h
+                                hit_low, n_low, d_low = _crossing(a_low, b_low, t_in, tc, g0, g1, -1.0)
+                                hit_up, n_up, d_up = _crossing(a_up, b_up, t_in, tc, g0, g1, 1.0)
+                                if hit_low | hit_up:  # the first cell with a hit holds the nearest one
+                                    t_low = n_low / d_low if hit_low else np.inf
+                                    best = min(best, t_low, n_up / d_up if hit_up else np.inf)
+                                    hit = True
+                                    break
+                            if tc >= t_exit:
+                                break
+                            z_prev, t_in = z_c, tc
+                            if tmax_x < tmax_y:
+                                ix += step_x
+                                if ix < cx0 or ix > cx1:
+                                    break
+                                k += step_x
+                                tmax_x = (xs[_u(ix + off_x)] - ox) * inv_dx
+                            else:
+                                iy += step_y
+                                if iy < cy0 or iy > cy1:
+                                    break
+                                k += step_y * ncx
+                                tmax_y = (ys[_u(iy + off_y)] - oy) * inv_dy
+                        if hit:
+                            break
+                    if t_exit >= t1:
                         break
-                    tby = (ys[_u(min((by + offb_y) << shift, ncy))] - oy) * inv_dy
-                    entered = 2
+                    # the next block
+                    t_enter, z_enter = t_exit, z_exit  # t_exit < t1 here: the nearer of tbx and tby
+                    if tbx < tby:
+                        bx += step_x
+                        if bx < 0 or bx >= nbx:
+                            break
+                        tbx = (xs[_u(min((bx + offb_x) << shift, ncx))] - ox) * inv_dx
+                        entered = 1
+                    else:
+                        by += step_y
+                        if by < 0 or by >= nby:
+                            break
+                        tby = (ys[_u(min((by + offb_y) << shift, ncy))] - oy) * inv_dy
+                        entered = 2
         if lo is None:
             out[i] = best if best <= t_lim else np.inf
         else:

@@ -35,6 +35,7 @@ from diana_lab.sim.world import World
 
 if TYPE_CHECKING:  # imported on first use: numba takes ~0.3 s to import, and encoders-only users never cast
     from diana_lab.sensing.heightfield_cast import HeightfieldScene
+    from diana_lab.sensing.pinhole import Pinhole
 
 __all__ = ["RayCaster", "scene_for"]
 
@@ -61,7 +62,9 @@ class RayCaster:
     :meth:`cast` returns the hit distance along every ray (``inf`` where nothing was hit); with unit
     directions that is the range. ``backend`` is ``"heightfield"`` or ``"open3d"`` (see the module);
     ``max_range`` lets the heightfield backend stop rays early (hits beyond it come back as ``inf``; open3d
-    casts to infinity either way, and the sensor discards returns beyond its range itself).
+    casts to infinity either way, and the sensor discards returns beyond its range itself). ``pinhole``: the
+    camera whose pixel rays ``directions`` are (checked here), which lets the heightfield backend rasterise the
+    terrain near the sensor (the same ranges, faster); open3d has no use for it.
     """
 
     def __init__(
@@ -71,6 +74,7 @@ class RayCaster:
         nthreads: int = 1,
         backend: str = "heightfield",
         max_range: float = math.inf,
+        pinhole: Pinhole | None = None,
     ) -> None:
         one_of("sensor.backend", backend, BACKENDS)
         self.world = world
@@ -79,6 +83,9 @@ class RayCaster:
         self.max_range = float(max_range)
         self.directions = np.ascontiguousarray(directions, dtype=np.float32).reshape(-1, 3)
         self.directions.setflags(write=False)
+        if pinhole is not None:
+            pinhole.check(self.directions)
+        self.pinhole = pinhole
         self._rays = np.zeros((len(self.directions), 6), dtype=np.float32)
         self._scene: o3d.t.geometry.RaycastingScene | HeightfieldScene | None = None
         self._rays_t: o3d.core.Tensor | None = None
@@ -111,7 +118,7 @@ class RayCaster:
         a sensor's ranges, NaN for no hit and outside ``[min_range, max_range]`` (compared in float32)."""
         if self.backend == "heightfield":
             return self._heightfield().cast_pose(
-                self.directions, _f64(origin), _f64(rotation), self.max_range, min_range
+                self.directions, _f64(origin), _f64(rotation), self.max_range, min_range, self.pinhole
             )
         self.rays(origin, rotation)
         if self._scene is None:
@@ -132,7 +139,9 @@ class RayCaster:
         computes it from the ranges on demand, to the same bits)."""
         if self.backend == "heightfield":
             scene = self._heightfield()
-            return scene.cast_frame(self.directions, _f64(origin), _f64(rotation), mount, self.max_range, min_range)
+            return scene.cast_frame(
+                self.directions, _f64(origin), _f64(rotation), mount, self.max_range, min_range, self.pinhole
+            )
         return self.cast(origin, rotation, min_range), None
 
     def _heightfield(self) -> HeightfieldScene:

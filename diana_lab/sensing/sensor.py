@@ -21,6 +21,7 @@ from diana_lab.rotations import pitch_matrix, rpy_matrix
 from diana_lab.sensing.encoders import Encoder, make_encoder
 from diana_lab.sensing.frame import SensorFrame
 from diana_lab.sensing.noise import NoiseModel
+from diana_lab.sensing.pinhole import Pinhole
 from diana_lab.sensing.raycast import RayCaster
 from diana_lab.sim.world import World
 
@@ -46,7 +47,14 @@ class RaySensor:
         # one range error per hit (and can pull a hit beyond max_range back in), so a noisy sensor gets all
         # hits, as with open3d, and the same frames for the same seed with either backend
         cast_range = math.inf if self.noise.active else float(cfg.max_range)
-        self.caster = RayCaster(world, directions, cfg.nthreads, backend=cfg.backend, max_range=cast_range)
+        self.caster = RayCaster(
+            world,
+            directions,
+            cfg.nthreads,
+            backend=cfg.backend,
+            max_range=cast_range,
+            pinhole=self.pinhole(mount_rotation),
+        )
         self.encoder: Encoder = make_encoder(cfg, self.image_shape, self.axis_cos)
         self.rng = np.random.default_rng(0)  # replaced by reset(); keeps capture() usable before it
         self._mount32 = self.mount.astype(np.float32)
@@ -56,6 +64,11 @@ class RaySensor:
     def pattern(self) -> np.ndarray:
         """``(H, W, 3)`` unit ray directions in the sensor frame (x forward, y left, z up)."""
         raise NotImplementedError
+
+    def pinhole(self, mount_rotation: np.ndarray) -> Pinhole | None:
+        """The pinhole camera whose pixel rays :meth:`pattern` gives, mounted with ``mount_rotation`` (sensor
+        frame to rover frame), if the sensor is one: the caster then rasterises the terrain near it."""
+        return None
 
     def optical_axis_cos(self, pattern: np.ndarray) -> np.ndarray | None:
         """Per-ray cosine to the optical axis (depth = range * cos), or ``None`` if depth is not defined."""
