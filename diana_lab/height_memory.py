@@ -93,26 +93,30 @@ class HeightMemory:
         if self.origin is None:
             return np.full(x.shape, np.nan), np.zeros(x.shape, dtype=bool)
         n, size, flat = self.n, self.cell_size, self.height  # flat [iy * n + ix], float32
-        # per axis, in whole numbers held as floats (fewer array operations: this runs on every shield decision)
+        # per axis, in whole numbers held as floats (few array operations: this runs on every shield decision;
+        # each costs ~1 us whatever its size)
         fx, fy = (x - self.origin[0]) / size, (y - self.origin[1]) / size  # in cells
         ix, iy = np.floor(fx), np.floor(fy)
-        inside = (ix >= 0) & (ix < n) & (iy >= 0) & (iy < n)
         ux, uy = fx - 0.5, fy - 0.5  # cell-centre coordinates
         jx, jy = np.floor(ux), np.floor(uy)
         tx, ty = ux - jx, uy - jy
-        ok = (jx >= 0) & (jx < n - 1) & (jy >= 0) & (jy < n - 1)
         last, corner_last = n - 1, max(n - 2, 0)
-        own_cell = np.fmin(np.fmax(iy, 0), last) * n + np.fmin(np.fmax(ix, 0), last)  # fmax: NaN -> 0
-        corner = np.fmin(np.fmax(jy, 0), corner_last) * n + np.fmin(np.fmax(jx, 0), corner_last)
+        # clamped onto the map (fmax: NaN -> 0); a point is on it where clamping left it alone
+        cx, cy = np.fmin(np.fmax(ix, 0), last), np.fmin(np.fmax(iy, 0), last)
+        kx, ky = np.fmin(np.fmax(jx, 0), corner_last), np.fmin(np.fmax(jy, 0), corner_last)
+        inside = (cx == ix) & (cy == iy)
+        own_cell, corner = cy * n + cx, ky * n + kx
         step = min(1, n - 1)  # the next cell right (and a row up: step * n); none on a 1-cell map
         # one gather, widening only the cells read: the point's own cell and the four around it
         cells = np.stack([own_cell, corner, corner + step, corner + step * n, corner + step * n + step])
         h = flat.take(cells.astype(np.int64)).astype(np.float64)
         own = np.where(inside, h[0], np.nan)
-        bilinear = (1 - ty) * ((1 - tx) * h[1] + tx * h[2]) + ty * ((1 - tx) * h[3] + tx * h[4])
+        sx = 1 - tx
+        bilinear = (1 - ty) * (sx * h[1] + tx * h[2]) + ty * (sx * h[3] + tx * h[4])
         known = np.isfinite(own)
-        height = np.where(ok & np.isfinite(bilinear), bilinear, own)
-        return np.where(known, height, np.nan), known
+        # bilinear where all four centres around lie on the map and are known (and the point's own cell is)
+        use = (kx == jx) & (ky == jy) & np.isfinite(bilinear) & known if n > 1 else np.zeros(x.shape, dtype=bool)
+        return np.where(use, bilinear, own), known
 
     @staticmethod
     def to_world(levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:

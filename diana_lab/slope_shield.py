@@ -154,17 +154,28 @@ class SlopeShield:
         required then) are left out."""
         pts = np.asarray(points_rover, dtype=np.float32).reshape(-1, 3)
         if self.cfg.min_range > 0:
-            pts = pts[self.far_enough(pts, sensor_xyz)]
+            pts = self.far_points(pts, pts, sensor_xyz)
         levelled = pts @ leveling_matrix(rpy).T.astype(np.float32)
         self.observe(HeightMemory.to_world(levelled, position, float(rpy[2])), np.asarray(position)[:2])
+
+    def far_points(
+        self, points: np.ndarray, points_rover: np.ndarray, sensor_xyz: Sequence[float] | None
+    ) -> np.ndarray:
+        """The rows of ``points`` (any frame) whose returns ``points_rover`` (the same, rover frame) are
+        :meth:`far_enough`: ``points[far_enough(...)]``, but ``points`` itself when every return is (the usual
+        case: a boolean row selection costs more than the test) and a ``take`` otherwise."""
+        keep = self.far_enough(points_rover, sensor_xyz)
+        return points if keep.all() else points.take(np.flatnonzero(keep), axis=0)
 
     def far_enough(self, points_rover: np.ndarray, sensor_xyz: Sequence[float] | None) -> np.ndarray:
         """Which returns (rover frame, ``(N, 3)`` float32) lie at least ``min_range`` from the sensor at
         ``sensor_xyz`` (rover frame): the ones the map keeps."""
         if sensor_xyz is None:
             raise ValueError("SlopeShield: min_range > 0 needs the sensor's position (sensor_xyz)")
-        gap = points_rover - np.asarray(sensor_xyz, dtype=np.float32)
-        return np.einsum("ij,ij->i", gap, gap) >= np.float32(self.cfg.min_range) ** 2
+        sx, sy, sz = np.asarray(sensor_xyz, dtype=np.float32)
+        # by column: numpy's (N, 3) broadcasts and row sums loop 3 wide and cost ~10x more (the same sums)
+        x, y, z = points_rover[:, 0] - sx, points_rover[:, 1] - sy, points_rover[:, 2] - sz
+        return x * x + y * y + z * z >= np.float32(self.cfg.min_range) ** 2
 
     def steepest_deg(self, start_xy: np.ndarray, offset: np.ndarray) -> float:
         """The largest pitch or roll (degrees) the map shows along the straight drive from ``start_xy`` by

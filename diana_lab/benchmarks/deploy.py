@@ -106,10 +106,11 @@ def policy_latency(ctx: BenchContext) -> list[Figure]:
     calls = ctx.size(2000, 300)
     with tempfile.TemporaryDirectory(prefix="diana_bench_") as folder:
         nav = _reference_navigator(Path(folder))
-        which = "the shipped reference policy" + (" behind its slope shield" if nav.shield is not None else "")
         if nav is None:
             nav = _recipe_navigator(ctx.seed, Path(folder))
             which = "an untrained PPO of the reference recipe (+experiment=reference; no policy shipped yet)"
+        else:
+            which = "the shipped reference policy" + (" behind its slope shield" if nav.shield is not None else "")
         runs = repeat(lambda: measure_latency(nav, n=calls, warmup=0), ctx.repeats)
     split = {
         "encode_p50_ms": float(np.median([r["encode_p50"] for r in runs])),

@@ -64,7 +64,8 @@ class CloudEncoder:
         if last is not None and last[0] is points:
             return last[1]
         idx, _ = self.sensor.locate(points, pixels=False)
-        visible = self.sensor.to_rover(points.take(idx, axis=0)).astype(np.float32)
+        seen = points if len(idx) == len(points) else points.take(idx, axis=0)  # usually every point
+        visible = self.sensor.to_rover(seen).astype(np.float32)
         self._last_visible = (points, visible)
         return visible
 

@@ -176,7 +176,7 @@ class Navigator:
         mount = self.encoder.sensor.mount
         if fused is not None:
             if self.shield.cfg.min_range > 0:  # the same returns, in the same order: the same mask
-                fused = fused[self.shield.far_enough(self.encoder.visible_rover_points(pts), mount)]
+                fused = self.shield.far_points(fused, self.encoder.visible_rover_points(pts), mount)
             self.shield.observe(fused, p.xy)
         else:
             rpy = (p.roll, p.pitch, p.yaw)

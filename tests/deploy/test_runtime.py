@@ -65,6 +65,34 @@ def test_geometry_matches_the_training_patterns(depth_run):
         np.testing.assert_array_equal(pixel, np.arange(len(rays)))
 
 
+@pytest.mark.parametrize(
+    ("beams", "low", "high"), [(16, -15.0, 15.0), (1, 0.0, 0.0), (1, -5.0, 5.0), (32, -89.5, 89.5)]
+)
+def test_lidar_visibility_without_pixels_keeps_the_points_a_beam_would_return(beams, low, high):
+    """``locate(pixels=False)`` (what the elevation map asks) tests the beams' elevation span with slopes, no
+    arctan: the same points as rounding each elevation to its beam (the pixel row of ``locate``)."""
+    spec = SensorSpec(
+        type="lidar3d",
+        mount_xyz=(0, 0, 0.3),
+        mount_pitch_deg=0,
+        min_range=0.3,
+        max_range=20,
+        beams=beams,
+        vfov_min_deg=low,
+        vfov_max_deg=high,
+        columns=90,
+    )
+    model = SensorModel(spec)
+    rng = np.random.default_rng(beams)
+    points = rng.normal(size=(20_000, 3)) * rng.uniform(0.1, 25.0, (20_000, 1))
+    points[:100, :2] = 0.0  # straight up or down
+    fast, none = model.locate(points, pixels=False)
+    by_beam, _ = model.locate(points)
+    assert none is None
+    np.testing.assert_array_equal(fast, by_beam)
+    assert 0 < len(fast) < len(points)
+
+
 def test_optical_frame_conversion():
     # optical frame: z forward, x right, y down
     np.testing.assert_array_equal(

@@ -160,6 +160,22 @@ def test_returns_near_the_sensor_are_left_out_of_the_map_with_min_range():
         shield(min_range=1.0).observe_rover(floor, (0.0, 0.0, 0.0), level)
 
 
+def test_far_points_are_the_rows_far_enough_whatever_frame_they_are_in():
+    """``far_points`` selects rows of any array by the rover-frame returns' distance: the boolean selection's
+    rows, and the array itself (no copy) when every return is far enough."""
+    s = shield(min_range=1.0)
+    sensor = np.array([0.2, 0.0, 0.3])
+    rover = np.random.default_rng(4).uniform(-3.0, 3.0, (500, 3)).astype(np.float32)
+    world = rover + np.float32(10.0)  # the same returns elsewhere
+    keep = s.far_enough(rover, sensor)
+    assert 0 < keep.sum() < len(rover)
+    np.testing.assert_array_equal(s.far_points(world, rover, sensor), world[keep])
+    far = rover[keep]
+    assert s.far_points(far + 10.0, far, sensor).shape == far.shape
+    same = far + np.float32(10.0)
+    assert s.far_points(same, far, sensor) is same
+
+
 def test_without_a_hazard_radius_hazards_are_not_kept():
     s = seen(lambda x, y: 0.0 * x)  # hazard_radius 0 (the default)
     s.mark_hazard(np.array([2.0, 0.0]))
