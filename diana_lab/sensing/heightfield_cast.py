@@ -574,7 +574,6 @@ def cast_terrain(
         if rotation is not None:
             ex, ey, ez = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
             ox, oy, oz = pose_x, pose_y, pose_z
-            dx, dy, dz = _rotate32(ex, ey, ez, r00, r01, r02, r10, r11, r12, r20, r21, r22)
         else:
             ox, oy, oz = np.float64(rays[i, 0]), np.float64(rays[i, 1]), np.float64(rays[i, 2])
             dx, dy, dz = np.float64(rays[i, 3]), np.float64(rays[i, 4]), np.float64(rays[i, 5])
@@ -582,9 +581,11 @@ def cast_terrain(
         near = np.inf
         if near_best is not None:
             near = near_best[i]
-        if near < np.inf:  # the raster found its nearest terrain hit (pinhole_raster)
+        if near < np.inf:  # the raster found its nearest terrain hit (pinhole_raster): no walk, no world ray
             best = min(best, near)
         else:
+            if rotation is not None:
+                dx, dy, dz = _rotate32(ex, ey, ez, r00, r01, r02, r10, r11, r12, r20, r21, r22)
             # clip to the map's box, the terrain's height range, the range limit and the obstacle hit
             step_x = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
             step_y = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
