@@ -307,7 +307,12 @@ class HeightfieldScene:
         """The near field's hits (:func:`~diana_lab.sensing.pinhole_raster.raster_near`) and its box; ``None``
         and an empty box where the raster does not apply (cells narrower than its ``DELTA``, the sensor off
         the map or down at the terrain)."""
-        from diana_lab.sensing.pinhole_raster import DELTA, REACH_M, raster_near  # (it imports this module)
+        from diana_lab.sensing.pinhole_raster import (  # (it imports this module)
+            DELTA,
+            REACH_CELLS,
+            REACH_M,
+            raster_near,
+        )
 
         if self.min_cell <= DELTA:
             return None, _NO_BOX
@@ -317,7 +322,7 @@ class HeightfieldScene:
             rotation,
             pinhole.mount_rotation,
             pinhole.params,
-            REACH_M,
+            min(REACH_M, REACH_CELLS * self.min_cell),
             self.xs,
             self.ys,
             self.heights,

@@ -12,7 +12,7 @@ from diana_lab.sensing.camera import pinhole_pattern
 from diana_lab.sensing.heightfield_cast import heightfield_for
 from diana_lab.sensing.lidar import lidar_pattern
 from diana_lab.sensing.pinhole import Pinhole
-from diana_lab.sensing.pinhole_raster import DELTA
+from diana_lab.sensing.pinhole_raster import DELTA, REACH_CELLS
 from diana_lab.sensing.raycast import RayCaster
 from diana_lab.sim.terrain import Terrain
 from diana_lab.sim.world import World
@@ -116,6 +116,23 @@ def test_the_raster_is_skipped_where_it_cannot_prove_a_hit_nearest(mars_yard):
             scene.cast_pose(directions, origin, rotation, 10.0, pinhole=pinhole),
             scene.cast_pose(directions, origin, rotation, 10.0),
         )
+
+
+def test_the_reach_is_capped_in_cells_on_a_fine_dem():
+    """The box's cost grows as the square of its reach in cells: on 0.05 m cells it reaches REACH_CELLS cells
+    (2 m), not 4 m, and the ranges stay the walk's."""
+    fine = World("fine", Terrain(np.zeros((401, 401)), 20.0, 20.0), [])
+    scene = heightfield_for(fine)
+    directions, pinhole = camera(*CAMERAS["d435_64x48"])
+    origin, rotation = np.array([0.0, 0.0, 0.35]), rpy_matrix([0.0, 0.0, 0.3])
+    near, near_box = scene._raster(directions, origin, rotation, pinhole)
+    assert near is not None and np.isfinite(near).sum() > 500
+    span = max(near_box[1] - near_box[0], near_box[3] - near_box[2])
+    assert REACH_CELLS <= span <= 2 * REACH_CELLS + 2  # uncapped, 4 m: ~120 cells
+    _same(
+        scene.cast_pose(directions, origin, rotation, 10.0, pinhole=pinhole),
+        scene.cast_pose(directions, origin, rotation, 10.0),
+    )
 
 
 def test_depth_cameras_carry_their_pinhole_and_lidars_none(mars_yard):
