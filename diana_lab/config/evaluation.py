@@ -35,9 +35,13 @@ class ShieldConfig:
     # m: the shield's map leaves out returns nearer than this to the sensor (spurious dust returns live there,
     # and the lidar never looks again at the ground beside the rover to overwrite them); 0: maps every return
     min_range: float = 0.0
+    # m: among the allowed candidates, drive the first that ends at least this far from every place the rover
+    # stood at an earlier decision of the episode (the first allowed if none does): no loops back; 0: off
+    revisit_radius: float = 0.0
 
     def __post_init__(self) -> None:
         non_negative("eval.shield.min_range", self.min_range)
+        non_negative("eval.shield.revisit_radius", self.revisit_radius)
         non_negative("eval.shield.hazard_radius", self.hazard_radius)
         non_negative("eval.shield.obstacle_height", self.obstacle_height)
         positive("eval.shield.cell_size", self.cell_size)

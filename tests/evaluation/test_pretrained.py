@@ -82,7 +82,7 @@ def test_the_card_holds_every_suite_with_every_rate():
 @pytest.mark.slow
 def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
     """Deterministic policy, fixed suite: the figures come back (within one episode, for other CPUs' float
-    rounding), and they clear the issue's bar for this suite, 90 % success (v0.6: 19 of 20; v0.5 gave 18)."""
+    rounding), and they clear the issue's bar for this suite, 90 % success (v0.7 and v0.6: 19 of 20; v0.5 gave 18)."""
     want = card()["results"]["mars_yard_20"]
     out = tmp_path / "summary.json"
     proc = evaluate_cli(
@@ -152,11 +152,14 @@ def test_the_preset_drives_it_behind_the_slope_shield_which_only_reorders_its_ow
         first_allowed = next(int(k) for k in ranking[: shield.cfg.top_k] if shield.allows(xy, offsets[k]))
         assert action == first_allowed
         assert shield.memory.origin is not None  # the reset frame was mapped
-        # the tilt check alone (the preset's obstacle check off): nothing the map shows is too steep at 89 deg, so
+        # the tilt check alone (the preset's obstacle check and place rule off: the calls below all stand on the
+        # same place, which the rule would remember): nothing the map shows is too steep at 89 deg, so
         # the policy's own choice; at ~0 deg only drives over ground it has not seen (or perfectly level) pass,
         # and the count of vetoes says when it differed
         assert shield.cfg.obstacle_height > 0
         shield.cfg.obstacle_height = 0.0
+        assert shield.cfg.revisit_radius > 0
+        shield.cfg.revisit_radius = 0.0
         shield.cfg.limit_deg = 89.0
         assert int(policy.act(obs, env)) == int(ranking[0])
         shield.cfg.limit_deg = 1e-9
@@ -180,8 +183,8 @@ def test_without_the_shield_it_is_the_bare_policy_and_baselines_say_they_run_wit
 
 
 def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_path):
-    """``shield_vetoes`` per episode in the rows, ``shield_veto_rate`` (vetoes per step, with its interval) in
-    the summary; both absent without the shield."""
+    """``shield_vetoes`` and ``shield_revisits`` per episode in the rows, ``shield_veto_rate`` and
+    ``shield_revisit_rate`` (per step, with intervals) in the summary; all absent without the shield."""
     from diana_lab.evaluation import evaluate
 
     rates = {}
@@ -202,8 +205,14 @@ def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_p
             assert summary["shield_veto_rate"] == pytest.approx(vetoes / sum_steps(rows))
             lo, hi = summary["shield_veto_rate_ci95"]
             assert lo <= summary["shield_veto_rate"] <= hi
+            # the place rule's share (the preset's eval.shield.revisit_radius), part of the vetoes
+            assert "shield_revisits" in rows[0] and loaded.policy.shield.cfg.revisit_radius == 1.0
+            revisits = loaded.policy.shield.revisits
+            assert summary["shield_revisit_rate"] == pytest.approx(revisits / sum_steps(rows))
+            assert 0 <= revisits <= vetoes
         else:
             assert "shield_vetoes" not in rows[0] and "shield_veto_rate" not in summary
+            assert "shield_revisit_rate" not in summary
     assert rates[True] is not None and rates[False] is None
 
 

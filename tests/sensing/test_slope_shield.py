@@ -78,6 +78,37 @@ def test_choose_falls_back_to_the_policys_choice_beyond_top_k_or_when_all_are_ve
         s.choose([], offsets, np.zeros(2))
 
 
+def test_the_place_rule_prefers_an_allowed_drive_that_does_not_end_where_the_rover_stood():
+    s = seen(lambda x, y: np.zeros_like(x), revisit_radius=1.0, top_k=8)
+    back, side, ahead = [-2.0, 0.0], [0.0, 2.0], [2.0, 0.0]
+    offsets = np.array([back, side, ahead])
+    assert s.choose([2, 0, 1], offsets, np.zeros(2)) == 2  # the first decision: nowhere stood yet
+    # 2 m further on, the policy wants to go back to the start: the next allowed drive that ends elsewhere wins
+    assert s.choose([0, 1, 2], offsets, np.array([2.0, 0.0])) == 1
+    assert (s.decisions, s.vetoes, s.revisits) == (2, 1, 1)
+    assert s.fresh(np.array([2.0, 0.0]), offsets).tolist() == [False, True, True]
+    s.reset()  # a new episode forgets the places
+    assert s.choose([0, 1, 2], offsets, np.array([2.0, 0.0])) == 0
+    assert s.revisits == 1
+
+
+def test_the_place_rule_drives_the_first_allowed_when_every_allowed_drive_returns():
+    s = seen(lambda x, y: np.where(x > 3.0, 0.5, 0.0), revisit_radius=1.0)  # a wall 1 m ahead of x = 2
+    offsets = np.array([[2.0, 0.0], [-2.0, 0.0], [-2.0, 0.1]])
+    s.choose([0], offsets, np.zeros(2))  # stood at the origin
+    # from x = 2: ahead crosses the wall, both others end at the origin: the first allowed, no place veto
+    assert s.choose([0, 2, 1], offsets, np.array([2.0, 0.0])) == 2
+    assert s.revisits == 0 and s.vetoes == 1
+
+
+def test_without_a_revisit_radius_places_are_not_kept():
+    s = seen(lambda x, y: np.zeros_like(x))
+    offsets = np.array([[-2.0, 0.0], [0.0, 2.0]])
+    s.choose([1], offsets, np.zeros(2))
+    assert s.choose([0, 1], offsets, np.array([2.0, 0.0])) == 0  # back to the origin, as the policy asks
+    assert s.fresh(np.array([2.0, 0.0]), offsets).all() and (s.vetoes, s.revisits) == (0, 0)
+
+
 def test_a_hazard_felt_vetoes_the_drives_that_pass_near_it_until_reset():
     """Where the wheels met ground they could not drive (the tilt guard, a slope) is kept off, though the map
     shows flat ground there (what the rover tips on is often narrower than the map's cells)."""
@@ -194,6 +225,7 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("hazard_radius", -0.5),
         ("obstacle_height", -0.1),
         ("min_range", -1.0),
+        ("revisit_radius", -0.5),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
