@@ -121,14 +121,14 @@ class SlopeShield:
         self.vetoes = 0  # of which drove another candidate than the policy's first
         self.revisits = 0  # of which the place rule alone turned from the first allowed candidate
         self.hazards = np.zeros((0, 2))  # this episode's hazards felt (world xy)
-        self._stood: list[np.ndarray] = []  # where the rover stood at this episode's decisions (world xy)
+        self._stood = np.zeros((0, 2))  # where the rover stood at this episode's decisions (world xy), each once
 
     def reset(self) -> None:
         """A new episode: forget the map, the hazards and the places stood on (the counters keep running over
         the suite)."""
         self.memory.reset()
         self.hazards = np.zeros((0, 2))
-        self._stood = []
+        self._stood = np.zeros((0, 2))
 
     def mark_hazard(self, xy: Sequence[float] | None) -> None:
         """Remember where the wheels met ground they could not drive (``None``: nothing to remember); kept only
@@ -302,12 +302,11 @@ class SlopeShield:
         """Whether each drive in ``offsets`` ``(K, 2)`` ends at least ``revisit_radius`` from every place the
         rover stood at an earlier decision of this episode, ``(K,)`` bool (all True with the rule off)."""
         offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
-        if self.cfg.revisit_radius <= 0 or not self._stood:
+        if self.cfg.revisit_radius <= 0 or len(self._stood) == 0:
             return np.ones(len(offsets), dtype=bool)
         ends = np.asarray(start_xy, dtype=np.float64)[:2] + offsets
-        stood = np.asarray(self._stood)
-        dx = ends[:, 0, None] - stood[None, :, 0]
-        dy = ends[:, 1, None] - stood[None, :, 1]
+        dx = ends[:, 0, None] - self._stood[None, :, 0]
+        dy = ends[:, 1, None] - self._stood[None, :, 1]
         return (dx * dx + dy * dy).min(axis=1) >= self.cfg.revisit_radius**2
 
     def choose(self, ranked: Sequence[int], offsets: np.ndarray, start_xy: np.ndarray) -> int:
@@ -321,8 +320,8 @@ class SlopeShield:
         top = np.asarray(ranked, dtype=np.int64)[: self.cfg.top_k]
         offsets = np.asarray(offsets)
         fresh = self.fresh(start, offsets[top])
-        if self.cfg.revisit_radius > 0:
-            self._stood.append(start.copy())
+        if self.cfg.revisit_radius > 0 and not (len(self._stood) and (self._stood[-1] == start).all()):
+            self._stood = np.concatenate([self._stood, start[None]])  # a rover that has not moved adds nothing
         # the policy's own choice first (it passes ~6 times in 7 on the Mars yard), then the rest in one lookup
         first_allowed = self.allows(start, offsets[top[0]])
         if first_allowed and fresh[0]:
