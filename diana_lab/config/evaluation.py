@@ -23,7 +23,9 @@ class ShieldConfig:
     enabled: bool = False
     cell_size: float = 0.2  # m: the shield's own height map of the sensor's returns (finer than the policy's)
     limit_deg: float = 25.0  # veto a drive where the map shows a pitch or roll above this (unknown ground passes)
-    top_k: int = 16  # candidates tried, most probable first; if all are vetoed the policy's own choice is driven
+    # candidates tried, most probable first; if all are vetoed, the first not near a hazard felt and not obstructed
+    # (its tilt check dropped; away from places stood on first), else the policy's own choice, is driven
+    top_k: int = 16
     spacing: float = 0.2  # m between the checks along the drive
     radius: float = 64.0  # m: half-width of the square the map covers around the episode's first pose
     # m: also veto a drive passing this close to where the wheels met ground they could not drive this episode

@@ -135,8 +135,9 @@ class RobotConfig:
     tipover_deg: float = 40.0  # roll or pitch beyond this is a tip-over
     base_height: float = 0.1  # base link origin above the ground plane when standing on flat ground
     # tilt fault protection (None: off): a drive halts where the rover's measured tilt first passes this, and
-    # the rover backs ``guard_retreat`` metres along its own track (never past the drive's start); the
-    # waypoint ends as ``halted``, and where the tilt passed the limit is reported (``hazard_xy``)
+    # the rover backs ``guard_retreat`` metres along its own track (never past the drive's start; tripped while
+    # turning in place, straight back); the waypoint ends as ``halted``, and where the tilt passed the limit is
+    # reported (``hazard_xy``)
     tilt_guard_deg: float | None = None
     guard_retreat: float = 1.2
 

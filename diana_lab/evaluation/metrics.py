@@ -24,7 +24,8 @@ __all__ = ["SUMMARY_KEYS", "mean_ci", "ratio_ci", "spl", "summarize", "to_json",
 Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 
 # the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``; a policy
-# behind the slope shield adds ``shield_veto_rate`` and ``shield_revisit_rate`` (and their intervals) after them
+# behind the slope shield adds ``shield_veto_rate``, ``shield_revisit_rate`` and ``shield_fallback_rate`` (and their
+# intervals) after them
 SUMMARY_KEYS = (
     "episodes",
     "success_rate",
@@ -143,6 +144,10 @@ def summarize(df: pd.DataFrame) -> dict[str, Any]:
         revisits, steps = int(df["shield_revisits"].sum()), int(df["steps"].sum())
         out["shield_revisit_rate"] = revisits / steps if steps else math.nan
         out["shield_revisit_rate_ci95"] = list(wilson(revisits, steps))
+    if "shield_fallbacks" in df:  # of the decisions, those that found no candidate allowed (tilt check dropped)
+        fallbacks, steps = int(df["shield_fallbacks"].sum()), int(df["steps"].sum())
+        out["shield_fallback_rate"] = fallbacks / steps if steps else math.nan
+        out["shield_fallback_rate_ci95"] = list(wilson(fallbacks, steps))
     if "halts" in df:  # with the rover's tilt guard: the share of waypoints it halted
         halts, steps = int(df["halts"].sum()), int(df["steps"].sum())
         out["halt_rate"] = halts / steps if steps else math.nan

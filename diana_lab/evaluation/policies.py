@@ -131,7 +131,7 @@ class ShieldedPolicy:
             )
         self.policy, self.cfg = policy, cfg
         self.shield: Any = None  # built on the first reset, from the env's robot
-        self._vetoes_before = self._revisits_before = 0
+        self._vetoes_before = self._revisits_before = self._fallbacks_before = 0
 
     @property
     def name(self) -> str:
@@ -154,14 +154,17 @@ class ShieldedPolicy:
             self.shield = SlopeShield(ShieldSettings.from_config(self.cfg, env.unwrapped.robot))
         self.shield.reset()
         self._vetoes_before, self._revisits_before = self.shield.vetoes, self.shield.revisits
+        self._fallbacks_before = self.shield.fallbacks
 
     def episode_stats(self) -> dict[str, int]:
         """The evaluation's extra columns for the episode just run: ``shield_vetoes``, the decisions the shield
         changed (each step is one decision), and ``shield_revisits``, those of them its place rule alone changed
-        (``eval.shield.revisit_radius``: the first allowed candidate ended where the rover had stood)."""
+        (``eval.shield.revisit_radius``: the first allowed candidate ended where the rover had stood), and
+        ``shield_fallbacks``, the decisions that found no candidate allowed (its tilt check then dropped)."""
         return {
             "shield_vetoes": self.shield.vetoes - self._vetoes_before,
             "shield_revisits": self.shield.revisits - self._revisits_before,
+            "shield_fallbacks": self.shield.fallbacks - self._fallbacks_before,
         }
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:

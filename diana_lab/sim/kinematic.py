@@ -11,7 +11,12 @@ samples). The first sample that violates a limit ends the waypoint:
 * ``out_of_bounds``: the centre leaves the terrain;
 * ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passes the guard
   (below the tip-over limit). The rover stops at the sample before and backs ``robot.guard_retreat`` metres
-  along its own track; the trace holds the drive out and back.
+  along its own track; the trace holds the drive out and back. A halt before the drive began (while turning
+  in place) backs it the same distance straight behind its heading: standing still, the next turn on the same
+  steep spot trips the guard again, and a rover that never leaves it waits out the episode. In both modes the
+  guard re-arms during a back-off once the tilt is back under it, and stops the back-off where it passes again;
+  a slope too steep to climb backwards stops it too, and ``tipover``, ``collision`` or ``out_of_bounds`` end
+  the waypoint as themselves.
 
 ``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``; while
 turning in place, half a rover length towards the heading it was turning to).
@@ -140,13 +145,54 @@ class KinematicDynamics:
         np.divide(np.abs(turn_yaw - yaw0), controller.turn_speed, out=times[1:m])
         yaws[m:] = heading
         np.add(abs(turn) / controller.turn_speed, s / controller.cruise_speed, out=times[m:])
-        return self._check_path(xy, yaws, times, s, m)
+        result = self._check_path(xy, yaws, times, s, m)
+        if result.outcome == "halted" and result.path_length == 0.0 and self.robot.guard_retreat > 0:
+            return self._back_off(result, controller.cruise_speed)
+        return result
+
+    def _back_off(self, halted: WaypointResult, speed: float) -> WaypointResult:
+        """After a guard halt that drove no distance: reverse ``guard_retreat`` metres straight behind the
+        rover's heading (see the module docstring); one result for the turn and the reverse, with the halt's
+        ``hazard_xy``."""
+        st = self._state
+        x0, y0, yaw = float(st.position[0]), float(st.position[1]), st.yaw
+        reach = self.robot.guard_retreat
+        n = max(int(math.ceil(reach / self.cfg.sample_spacing)), 1)
+        s = reach * np.arange(1, n + 1) / n
+        xy = np.empty((n + 1, 2))
+        xy[0] = x0, y0
+        xy[1:, 0] = x0 - s * math.cos(yaw)
+        xy[1:, 1] = y0 - s * math.sin(yaw)
+        times = np.concatenate([[0.0], s / speed])
+        back = self._check_path(xy, np.full(n + 1, yaw), times, s, 1, reverse=True)
+        outcome = back.outcome if back.outcome in ("tipover", "collision", "out_of_bounds") else "halted"
+        t0, t1 = halted.trace_t, back.trace_t
+        assert t0 is not None and t1 is not None  # _check_path always times its samples
+        return WaypointResult(
+            outcome,
+            halted.duration + back.duration,
+            back.path_length,
+            np.concatenate([halted.trace_xy, back.trace_xy[1:]]),
+            np.concatenate([halted.trace_tilt_deg, back.trace_tilt_deg[1:]]),
+            np.concatenate([halted.trace_rp, back.trace_rp[1:]]),
+            halted.detail,
+            np.concatenate([t0, halted.duration + t1[1:]]),
+            hazard_xy=halted.hazard_xy,
+        )
 
     def _check_path(
-        self, xy: np.ndarray, yaws: np.ndarray, times: np.ndarray, drive_s: np.ndarray, m: int
+        self,
+        xy: np.ndarray,
+        yaws: np.ndarray,
+        times: np.ndarray,
+        drive_s: np.ndarray,
+        m: int,
+        *,
+        reverse: bool = False,
     ) -> WaypointResult:
         """Walk the sampled path (``xy (K, 2)``, ``yaws``, ``times``; samples from ``m`` on lie ``drive_s``
-        metres along the drive) and stop at the first sample that breaks a limit."""
+        metres along the drive) and stop at the first sample that breaks a limit. ``reverse``: the guard's back
+        off (a nose-down slope is the one it cannot climb; a guard halt stops it, backing off no further)."""
         xs, ys = xy[:, 0], xy[:, 1]
         z, rp = self._poses(xy, yaws)
         tilt = tilt_deg(rp[:, 0], rp[:, 1])
@@ -156,7 +202,10 @@ class KinematicDynamics:
         failed = np.empty((len(xs), len(FAILURE_CHECKS)), dtype=bool)
         np.logical_not(self.world.terrain.contains(xs, ys), out=failed[:, 0])
         np.greater(tilt, robot.tipover_deg, out=failed[:, 2])
-        np.less(rp[:, 1], -self._max_slope_rad, out=failed[:, 3])  # nose-up pitch above the limit
+        if reverse:  # backing up a slope: the nose points down it
+            np.greater(rp[:, 1], self._max_slope_rad, out=failed[:, 3])
+        else:
+            np.less(rp[:, 1], -self._max_slope_rad, out=failed[:, 3])  # nose-up pitch above the limit
         if self._collision_clearance is None:
             failed[:, 4] = False
         else:
@@ -165,6 +214,8 @@ class KinematicDynamics:
             failed[:, 1] = False
         else:
             np.greater(tilt, robot.tilt_guard_deg, out=failed[:, 1])
+            if reverse:  # the guard re-arms once the tilt is back under it (as in the physics mode)
+                failed[:, 1] &= np.logical_or.accumulate(~failed[:, 1])
         failed[0] = False  # the starting sample was checked when the rover got there
         flat = int(failed.argmax())
         first, check = divmod(flat, len(FAILURE_CHECKS))
@@ -175,7 +226,7 @@ class KinematicDynamics:
         keep = np.arange(end + 1)
         trace_t = times[: end + 1].copy()
         length = float(drive_s[end - m]) if end >= m else 0.0  # turning in place covers no distance
-        if outcome == "halted" and end >= m:  # back along the drive to guard_retreat metres before the stop
+        if outcome == "halted" and end >= m and not reverse:  # back along the drive, guard_retreat before the stop
             along = np.concatenate([[0.0], drive_s[: end - m + 1]])  # samples m - 1 (the drive's start) .. end
             # the nearest sample at least guard_retreat back, or the drive's start
             stop = m - 1 + max(int(np.searchsorted(along, along[-1] - robot.guard_retreat, side="right")) - 1, 0)

@@ -14,9 +14,10 @@ except contacts with obstacles, which are checked every physics step while an ob
 * ``out_of_bounds``: the rover's centre leaves the terrain;
 * ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passed the guard
   (below the tip-over limit); the rover stopped there and backed ``robot.guard_retreat`` metres (never past
-  where the drive began) before the waypoint ended. ``hazard_xy`` is where the guard tripped (while turning in
-  place: half a rover length towards the waypoint); a ``stuck`` while driving forward reports half a rover
-  length ahead;
+  where the drive began; tripped while turning in place, that far straight back, as in the kinematic mode)
+  before the waypoint ended; the guard re-arms once the tilt is back under it, and stops the back-off where it
+  passes again. ``hazard_xy`` is where the guard tripped (while turning in place: half a rover
+  length towards the waypoint); a ``stuck`` while driving forward reports half a rover length ahead;
 * ``sim_error``: a non-finite or absurd state (speed above 20 m/s, spin above 50 rad/s, fallen through the
   terrain) or a PyBullet error. ``state`` then stays at the last sane pose (finite observations and reward for
   the episode's last step), and the next ``reset`` rebuilds the PyBullet client, since a NaN body can leave
@@ -252,6 +253,7 @@ class PhysicsDynamics:
         guard, yaw = self.robot.tilt_guard_deg, st.yaw
         drive_from: tuple[float, float] | None = None  # where the straight drive began
         retreat: tuple[float, float, float] | None = None  # the guard's stop (x, y) and how far to back off
+        rearmed = False  # backing off, the tilt has been under the guard again
         hazard: np.ndarray | None = None
         phase, trip = "turn", ""
         while True:
@@ -297,15 +299,21 @@ class PhysicsDynamics:
             pitches.append(rpy[1])
             if outcome is not None:
                 break
+            if retreat is not None and guard is not None:  # the guard watches its own back-off once re-armed
+                if tilt <= guard:
+                    rearmed = True
+                elif rearmed:
+                    outcome, detail = "halted", f"{trip}; backing off stopped at {tilt:.1f} deg"
+                    break
             if guard is not None and retreat is None and tilt > guard:
                 trip = f"tilt guard: {tilt:.1f} deg at ({x:.2f}, {y:.2f})"
-                if phase != "drive" or drive_from is None:  # turning in place: stop where it stands
-                    outcome, detail = "halted", trip
+                if phase != "drive" or drive_from is None:  # turning in place: back straight off the spot
                     heading = math.atan2(waypoint[1] - est_xy[1], waypoint[0] - est_xy[0])
                     hazard = np.array([x, y]) + hazard_ahead(self.robot.length, heading)
-                    break
-                hazard = np.array([x, y])
-                retreat = (x, y, min(self.robot.guard_retreat, math.hypot(x - drive_from[0], y - drive_from[1])))
+                    retreat = (x, y, self.robot.guard_retreat)
+                else:
+                    hazard = np.array([x, y])
+                    retreat = (x, y, min(self.robot.guard_retreat, math.hypot(x - drive_from[0], y - drive_from[1])))
                 anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, yaw, elapsed  # backing off is progress
                 continue
             progress = math.hypot(x - anchor_x, y - anchor_y) + abs(wrap_angle(yaw - anchor_yaw)) * arm

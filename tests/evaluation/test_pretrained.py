@@ -82,7 +82,8 @@ def test_the_card_holds_every_suite_with_every_rate():
 @pytest.mark.slow
 def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
     """Deterministic policy, fixed suite: the figures come back (within one episode, for other CPUs' float
-    rounding), and they clear the issue's bar for this suite, 90 % success (v0.7 and v0.6: 19 of 20; v0.5 gave 18)."""
+    rounding), and they clear the issue's bar for this suite, 90 % success (v0.8: 20 of 20; v0.7 and v0.6: 19;
+    v0.5: 18)."""
     want = card()["results"]["mars_yard_20"]
     out = tmp_path / "summary.json"
     proc = evaluate_cli(
@@ -183,8 +184,8 @@ def test_without_the_shield_it_is_the_bare_policy_and_baselines_say_they_run_wit
 
 
 def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_path):
-    """``shield_vetoes`` and ``shield_revisits`` per episode in the rows, ``shield_veto_rate`` and
-    ``shield_revisit_rate`` (per step, with intervals) in the summary; all absent without the shield."""
+    """``shield_vetoes``, ``shield_revisits`` and ``shield_fallbacks`` per episode in the rows, their rates
+    (per step, with intervals) in the summary; all absent without the shield."""
     from diana_lab.evaluation import evaluate
 
     rates = {}
@@ -210,9 +211,13 @@ def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_p
             revisits = loaded.policy.shield.revisits
             assert summary["shield_revisit_rate"] == pytest.approx(revisits / sum_steps(rows))
             assert 0 <= revisits <= vetoes
+            assert "shield_fallbacks" in rows[0]
+            fallbacks = loaded.policy.shield.fallbacks
+            assert summary["shield_fallback_rate"] == pytest.approx(fallbacks / sum_steps(rows))
+            assert fallbacks <= loaded.policy.shield.decisions
         else:
             assert "shield_vetoes" not in rows[0] and "shield_veto_rate" not in summary
-            assert "shield_revisit_rate" not in summary
+            assert "shield_revisit_rate" not in summary and "shield_fallback_rate" not in summary
     assert rates[True] is not None and rates[False] is None
 
 

@@ -73,9 +73,46 @@ def test_choose_falls_back_to_the_policys_choice_beyond_top_k_or_when_all_are_ve
     s = seen(lambda x, y: np.where(x > 1.0, 0.5, 0.0), top_k=2)
     offsets = np.array([[3.0, 0.0], [2.0, 0.1], [0.0, 3.0]])
     assert s.choose([0, 1, 2], offsets, np.zeros(2)) == 0  # the allowed one is third: out of reach
-    assert s.vetoes == 0
+    assert (s.vetoes, s.fallbacks) == (0, 1)
     with pytest.raises(ValueError, match="at least one"):
         s.choose([], offsets, np.zeros(2))
+
+
+RAMP_30 = lambda x, y: math.tan(math.radians(30.0)) * x  # noqa: E731  every drive pitches or rolls 30 degrees
+
+
+def test_with_none_allowed_the_tilt_check_is_dropped_but_hazards_and_places_still_steer():
+    """A rover on 30 degree ground sees every drive over the 25 degree limit; repeating the policy's choice (the
+    drive that just halted) left it standing there. The first drive clear of hazards felt is driven instead,
+    one that ends away from the places stood on first."""
+    s = seen(RAMP_30, hazard_radius=0.5, revisit_radius=1.0)
+    up, left, down, right = [3.0, 0.0], [0.0, 3.0], [-3.0, 0.0], [0.0, -3.0]
+    offsets = np.array([up, left, down, right])
+    assert s.steepest_many(np.zeros(2), offsets).min() > 25.0
+    assert s.choose([0, 1, 2], offsets, np.zeros(2)) == 0  # nothing felt, nowhere stood: the policy's choice
+    assert (s.fallbacks, s.vetoes) == (1, 0)
+    s.mark_hazard(np.array([2.0, 0.0]))  # the tilt guard halted it up the slope
+    assert s.choose([0, 1, 2], offsets, np.zeros(2)) == 1  # not up again: the next, left
+    assert (s.fallbacks, s.vetoes) == (2, 1)
+    # 3 m to the left, the policy asks to go back right, to the origin it stood on: the next fresh one instead
+    assert s.choose([3, 0, 2], offsets, np.array([0.0, 3.0])) == 0
+    assert (s.fallbacks, s.vetoes) == (3, 2)
+    # every candidate passes near a hazard felt: the policy's choice, as before the rule
+    s.mark_hazard(np.array([0.0, 3.0]))
+    assert s.choose([0, 1], offsets, np.array([0.0, 3.0])) == 0 and (s.fallbacks, s.vetoes) == (4, 2)
+    # an allowed candidate takes no fallback
+    flat = seen(lambda x, y: 0.0 * x, hazard_radius=0.5)
+    assert flat.choose([0, 1], offsets, np.zeros(2)) == 0 and flat.fallbacks == 0
+
+
+def test_with_none_allowed_an_obstructed_drive_is_still_skipped():
+    """A 0.3 m rock 1 m up a 30 degree ramp: the tilt check is dropped when nothing passes, the obstacle check
+    is not."""
+    rock = lambda x, y: RAMP_30(x, y) + np.where((np.abs(y) < 0.2) & (x > 1.0) & (x < 1.4), 0.3, 0.0)  # noqa: E731
+    s = seen(rock, obstacle_height=0.1)
+    offsets = np.array([[3.0, 0.0], [0.0, 3.0]])
+    assert s.obstacle_m(np.zeros(2), offsets[0]) > 0.1 and s.obstacle_m(np.zeros(2), offsets[1]) < 0.1
+    assert s.choose([0, 1], offsets, np.zeros(2)) == 1 and (s.fallbacks, s.vetoes) == (1, 1)
 
 
 def test_the_place_rule_prefers_an_allowed_drive_that_does_not_end_where_the_rover_stood():

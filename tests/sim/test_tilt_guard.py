@@ -1,5 +1,6 @@
 """The rover's tilt fault protection (``robot.tilt_guard_deg``): a drive halts where the tilt passes the guard,
-backs ``robot.guard_retreat`` metres along its own track, and reports where the guard tripped (``hazard_xy``).
+backs ``robot.guard_retreat`` metres along its own track (tripped while turning in place, straight back), and
+reports where the guard tripped (``hazard_xy``).
 Both dynamics models, on a terrain whose cross slope grows along the drive until the rover would tip."""
 
 import math
@@ -86,18 +87,62 @@ def test_the_guard_trips_before_a_tip_between_two_samples(ramp):
     assert result.outcome == "halted"
 
 
-def test_a_halt_while_turning_in_place_bars_that_way_from_here():
-    """On a uniform 10 deg slope a 5 deg guard trips at the turn's first sample: the rover stays where it was
-    (nothing to back along) and reports half a rover length towards the heading it was turning to."""
+@pytest.mark.parametrize("retreat", [0.0, 1.2])
+def test_a_halt_while_turning_in_place_bars_that_way_and_backs_straight_off(retreat):
+    """On a uniform 10 deg slope a 5 deg guard trips at the turn's first sample: the rover backs
+    ``guard_retreat`` straight behind its heading (there is no track to back along; standing still, the next
+    turn would trip again), unguarded, and reports half a rover length towards the heading it was turning to."""
     from tests.sim.test_kinematic import slope_world
 
-    rover = robot(tilt_guard_deg=5.0)
+    rover = robot(tilt_guard_deg=5.0, guard_retreat=retreat)
     dyn, ctl = make("kinematic", slope_world(10.0), rover)
     dyn.reset(np.array([3.0, 0.0]), 0.0)
     result = dyn.execute(np.array([3.0, 3.0]), ctl)  # a quarter turn to the left first
-    assert result.outcome == "halted" and result.path_length == 0.0
-    np.testing.assert_allclose(dyn.state.xy, [3.0, 0.0])
+    assert result.outcome == "halted" and result.path_length == pytest.approx(retreat)
+    np.testing.assert_allclose(dyn.state.xy, [3.0 - retreat, 0.0], atol=1e-9)
+    assert dyn.state.yaw == pytest.approx(0.0)  # facing as it was: it backed, it did not turn
     np.testing.assert_allclose(result.hazard_xy, [3.0, 0.5 * rover.length], atol=1e-9)
+    np.testing.assert_allclose(result.trace_xy[-1], dyn.state.xy)
+    assert len(result.trace_t) == len(result.trace_xy) and np.all(np.diff(result.trace_t) >= 0)
+    assert result.duration == pytest.approx(result.trace_t[-1])
+
+
+def test_the_guard_re_arms_while_backing_off():
+    """Backing straight off from flat ground towards a 20 deg cross slope that starts 0.6 m behind: under a 15
+    deg guard the back-off stops at the last sample under it, short of its 1.2 m (the guard re-armed at the
+    start, where the tilt was under it), and the waypoint keeps the halt's own hazard."""
+    from diana_lab.sim.state import WaypointResult
+
+    x = np.linspace(-10.0, 10.0, 401)
+    gx, gy = np.meshgrid(x, x)
+    world = World("cross", Terrain(np.where(gx < -0.6, math.tan(math.radians(20.0)) * gy, 0.0), 20.0, 20.0))
+    dyn, _ = make("kinematic", world, robot(tilt_guard_deg=15.0))
+    dyn.reset(np.array([0.0, 0.0]), 0.0)
+    hazard = np.array([0.5, 0.0])
+    halted = WaypointResult(
+        "halted", 1.0, 0.0, np.zeros((1, 2)), np.zeros(1), np.zeros((1, 2)), "trip", np.zeros(1), hazard_xy=hazard
+    )
+    result = dyn._back_off(halted, 0.5)
+    assert result.outcome == "halted" and result.detail == "trip"
+    assert result.path_length < 1.0 and dyn.state.tilt_deg < 15.0  # short of the 1.2 m, still under the guard
+    assert result.trace_tilt_deg.max() < 15.0
+    np.testing.assert_allclose(result.hazard_xy, hazard)
+    assert result.duration == pytest.approx(1.0 + result.path_length / 0.5)
+
+
+def test_backing_off_a_turn_halt_stops_at_a_slope_too_steep_to_climb_backwards():
+    """Facing down a 10 deg slope that steepens to 40 deg 0.5 m behind the rover (uphill): backing off would
+    climb it backwards, nose down past the 25 deg the Jackal can climb: the back-off stops at its foot."""
+    x = np.linspace(-10.0, 10.0, 401)
+    gx, gy = np.meshgrid(x, x)
+    slope = np.where(gx < -0.5, math.tan(math.radians(10.0)), math.tan(math.radians(40.0)))
+    heights = np.cumsum(slope, axis=1) * (x[1] - x[0])  # rising towards +x
+    world = World("steepening", Terrain(heights - heights[200, 200], 20.0, 20.0))
+    dyn, ctl = make("kinematic", world, robot(tilt_guard_deg=5.0))
+    dyn.reset(np.array([-1.5, 0.0]), math.pi)  # facing -x, down the slope; +x (behind) gets steep
+    result = dyn.execute(np.array([-1.5, 3.0]), ctl)
+    assert result.outcome == "halted"
+    assert 0.0 < result.path_length < 1.2 and dyn.state.xy[0] < -0.3
 
 
 def test_a_slope_that_stops_a_turn_in_place_reports_the_way_it_was_turning_to():
@@ -164,9 +209,12 @@ def test_physics_halt_while_turning_reports_the_way_it_was_turning_to():
         start = dyn.state.xy.copy()
         result = dyn.execute(np.array([3.0, 3.0]), ctl)
         assert result.outcome == "halted" and "tilt guard" in result.detail
-        assert np.hypot(*(dyn.state.xy - start)) < 0.1  # it stopped where it stood
-        ahead = result.hazard_xy - dyn.state.xy
-        assert np.hypot(*ahead) == pytest.approx(0.5 * rover.length, rel=1e-6)
+        # it backed guard_retreat (1.2 m) straight off the spot where the guard tripped, near where it stood
+        assert np.hypot(*(dyn.state.xy - start)) == pytest.approx(rover.guard_retreat, abs=0.2)
+        trip = result.trace_xy[np.argmax(result.trace_tilt_deg > 5.0)]
+        assert np.hypot(*(trip - start)) < 0.1
+        ahead = result.hazard_xy - trip
+        assert np.hypot(*ahead) == pytest.approx(0.5 * rover.length, abs=0.05)
         assert math.degrees(math.atan2(ahead[1], ahead[0])) == pytest.approx(90.0, abs=5.0)
     finally:
         dyn.close()
