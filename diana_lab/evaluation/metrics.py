@@ -26,6 +26,15 @@ Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 # the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``; a policy
 # behind the slope shield adds ``shield_veto_rate``, ``shield_revisit_rate`` and ``shield_fallback_rate`` (and their
 # intervals) after them
+# per-step rates from optional per-episode counts, (column, summary key), in the summary's order: behind the slope
+# shield the decisions it changed, those its place rule changed (eval.shield.revisit_radius), those that found no
+# candidate allowed (its tilt check dropped); with the rover's tilt guard, the waypoints it halted
+PER_STEP_RATES = (
+    ("shield_vetoes", "shield_veto_rate"),
+    ("shield_revisits", "shield_revisit_rate"),
+    ("shield_fallbacks", "shield_fallback_rate"),
+    ("halts", "halt_rate"),
+)
 SUMMARY_KEYS = (
     "episodes",
     "success_rate",
@@ -136,22 +145,12 @@ def summarize(df: pd.DataFrame) -> dict[str, Any]:
     mean("mean_waypoints", df["steps"].to_numpy())
     finite = speeds[np.isfinite(speeds)]
     out["min_speed_mps"] = float(finite.min()) if finite.size else math.nan
-    if "shield_vetoes" in df:  # behind the slope shield: the share of decisions (steps) it changed
-        vetoes, steps = int(df["shield_vetoes"].sum()), int(df["steps"].sum())
-        out["shield_veto_rate"] = vetoes / steps if steps else math.nan
-        out["shield_veto_rate_ci95"] = list(wilson(vetoes, steps))
-    if "shield_revisits" in df:  # of the decisions, those its place rule changed (eval.shield.revisit_radius)
-        revisits, steps = int(df["shield_revisits"].sum()), int(df["steps"].sum())
-        out["shield_revisit_rate"] = revisits / steps if steps else math.nan
-        out["shield_revisit_rate_ci95"] = list(wilson(revisits, steps))
-    if "shield_fallbacks" in df:  # of the decisions, those that found no candidate allowed (tilt check dropped)
-        fallbacks, steps = int(df["shield_fallbacks"].sum()), int(df["steps"].sum())
-        out["shield_fallback_rate"] = fallbacks / steps if steps else math.nan
-        out["shield_fallback_rate_ci95"] = list(wilson(fallbacks, steps))
-    if "halts" in df:  # with the rover's tilt guard: the share of waypoints it halted
-        halts, steps = int(df["halts"].sum()), int(df["steps"].sum())
-        out["halt_rate"] = halts / steps if steps else math.nan
-        out["halt_rate_ci95"] = list(wilson(halts, steps))
+    steps = int(df["steps"].sum())
+    for column, key in PER_STEP_RATES:  # optional counts per episode -> their share of all steps (decisions)
+        if column in df:
+            count = int(df[column].sum())
+            out[key] = count / steps if steps else math.nan
+            out[f"{key}_ci95"] = list(wilson(count, steps))
     return {k: _plain(v) for k, v in out.items()}
 
 
