@@ -140,6 +140,11 @@ class RobotConfig:
     # reported (``hazard_xy``)
     tilt_guard_deg: float | None = None
     guard_retreat: float = 1.2
+    # how it backs off: it first stands still ``guard_pause_s`` seconds (the wheels hold, the body settles), then
+    # reverses at ``guard_retreat_speed`` m/s (null: ``cruise_speed``). In physics, reversing at full speed the
+    # instant the guard trips jerks a rover that is already past the guard closer to rolling over
+    guard_pause_s: float = 0.0
+    guard_retreat_speed: float | None = None
 
     def __post_init__(self) -> None:
         for key in (
@@ -167,6 +172,9 @@ class RobotConfig:
                 f"{self.tipover_deg}) degrees, got {self.tilt_guard_deg}"
             )
         non_negative("robot.guard_retreat", self.guard_retreat)
+        non_negative("robot.guard_pause_s", self.guard_pause_s)
+        if self.guard_retreat_speed is not None:
+            in_range("robot.guard_retreat_speed", self.guard_retreat_speed, 0.01, 3.0)
         if not self.wheel_joints_left or not self.wheel_joints_right:
             raise ConfigError("robot.wheel_joints_left / wheel_joints_right: expected at least one joint per side")
         if len(self.axle_x) < 2:
@@ -176,6 +184,11 @@ class RobotConfig:
     def radius(self) -> float:
         """Radius of the circle that encloses the footprint."""
         return 0.5 * (self.length**2 + self.width**2) ** 0.5
+
+    @property
+    def retreat_speed(self) -> float:
+        """How fast the tilt guard backs the rover off (m/s): ``guard_retreat_speed``, else ``cruise_speed``."""
+        return self.cruise_speed if self.guard_retreat_speed is None else self.guard_retreat_speed
 
 
 # ----------------------------------------------------------------------------------------------- controller + dynamics

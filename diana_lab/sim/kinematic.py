@@ -10,8 +10,10 @@ samples). The first sample that violates a limit ends the waypoint:
 * ``collision``: an obstacle taller than ``robot.ground_clearance`` within ``robot.radius`` of the centre;
 * ``out_of_bounds``: the centre leaves the terrain;
 * ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passes the guard
-  (below the tip-over limit). The rover stops at the sample before and backs ``robot.guard_retreat`` metres
-  along its own track; the trace holds the drive out and back. A halt before the drive began (while turning
+  (below the tip-over limit). The rover stops at the sample before and, after ``robot.guard_pause_s`` standing
+  still, backs ``robot.guard_retreat`` metres along its own track at ``robot.retreat_speed`` (the trace's times
+  hold both; the geometry is the physics mode's without the jerk the pause exists for); the trace holds the
+  drive out and back. A halt before the drive began (while turning
   in place) backs it the same distance straight behind its heading: standing still, the next turn on the same
   steep spot trips the guard again, and a rover that never leaves it waits out the episode. In both modes the
   guard re-arms during a back-off once the tilt is back under it, and stops the back-off where it passes again;
@@ -147,13 +149,13 @@ class KinematicDynamics:
         np.add(abs(turn) / controller.turn_speed, s / controller.cruise_speed, out=times[m:])
         result = self._check_path(xy, yaws, times, s, m)
         if result.outcome == "halted" and result.path_length == 0.0 and self.robot.guard_retreat > 0:
-            return self._back_off(result, controller.cruise_speed)
+            return self._back_off(result)
         return result
 
-    def _back_off(self, halted: WaypointResult, speed: float) -> WaypointResult:
+    def _back_off(self, halted: WaypointResult) -> WaypointResult:
         """After a guard halt that drove no distance: reverse ``guard_retreat`` metres straight behind the
-        rover's heading (see the module docstring); one result for the turn and the reverse, with the halt's
-        ``hazard_xy``."""
+        rover's heading (see the module docstring), after ``guard_pause_s`` standing still, at its retreat speed;
+        one result for the turn and the reverse, with the halt's ``hazard_xy``."""
         st = self._state
         x0, y0, yaw = float(st.position[0]), float(st.position[1]), st.yaw
         reach = self.robot.guard_retreat
@@ -163,7 +165,7 @@ class KinematicDynamics:
         xy[0] = x0, y0
         xy[1:, 0] = x0 - s * math.cos(yaw)
         xy[1:, 1] = y0 - s * math.sin(yaw)
-        times = np.concatenate([[0.0], s / speed])
+        times = np.concatenate([[0.0], self.robot.guard_pause_s + s / self.robot.retreat_speed])
         back = self._check_path(xy, np.full(n + 1, yaw), times, s, 1, reverse=True)
         outcome = back.outcome if back.outcome in ("tipover", "collision", "out_of_bounds") else "halted"
         t0, t1 = halted.trace_t, back.trace_t
@@ -232,7 +234,8 @@ class KinematicDynamics:
             stop = m - 1 + max(int(np.searchsorted(along, along[-1] - robot.guard_retreat, side="right")) - 1, 0)
             back = np.arange(end - 1, stop - 1, -1)
             keep = np.concatenate([keep, back])
-            trace_t = np.concatenate([trace_t, 2.0 * times[end] - times[back]])  # drive times are linear in s
+            back_s = along[-1] - along[back - (m - 1)]  # metres backed off at each sample
+            trace_t = np.concatenate([trace_t, times[end] + robot.guard_pause_s + back_s / robot.retreat_speed])
             length += length - (float(drive_s[stop - m]) if stop >= m else 0.0)
             end = stop
         self._set_state(

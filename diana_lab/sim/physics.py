@@ -13,11 +13,13 @@ except contacts with obstacles, which are checked every physics step while an ob
   within ``cfg.stuck_window_s`` while the controller commands motion;
 * ``out_of_bounds``: the rover's centre leaves the terrain;
 * ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passed the guard
-  (below the tip-over limit); the rover stopped there and backed ``robot.guard_retreat`` metres (never past
-  where the drive began; tripped while turning in place, that far straight back, as in the kinematic mode)
-  before the waypoint ended; the guard re-arms once the tilt is back under it, and stops the back-off where it
-  passes again. ``hazard_xy`` is where the guard tripped (while turning in place: half a rover
-  length towards the waypoint); a ``stuck`` while driving forward reports half a rover length ahead;
+  (below the tip-over limit); the rover stopped there, stood ``robot.guard_pause_s`` seconds with its wheels
+  held, and backed ``robot.guard_retreat`` metres at ``robot.guard_retreat_speed`` (never past where the drive
+  began; tripped while turning in place, that far straight back, as in the kinematic mode) before the waypoint
+  ended (the back-off gets its own time on top of the controller's limit); the guard re-arms once the tilt is
+  back under it, and stops the back-off where it passes again. ``hazard_xy`` is where the guard tripped (while
+  turning in place: half a rover length towards the waypoint); a ``stuck`` while driving forward reports half a
+  rover length ahead;
 * ``sim_error``: a non-finite or absurd state (speed above 20 m/s, spin above 50 rad/s, fallen through the
   terrain) or a PyBullet error. ``state`` then stays at the last sane pose (finite observations and reward for
   the episode's last step), and the next ``reset`` rebuilds the PyBullet client, since a NaN body can leave
@@ -254,6 +256,8 @@ class PhysicsDynamics:
         drive_from: tuple[float, float] | None = None  # where the straight drive began
         retreat: tuple[float, float, float] | None = None  # the guard's stop (x, y) and how far to back off
         rearmed = False  # backing off, the tilt has been under the guard again
+        tripped_at = 0.0  # when the guard tripped (elapsed s)
+        pause, back_speed = self.robot.guard_pause_s, self.robot.retreat_speed
         hazard: np.ndarray | None = None
         phase, trip = "turn", ""
         while True:
@@ -268,8 +272,10 @@ class PhysicsDynamics:
             elif math.hypot(x - retreat[0], y - retreat[1]) >= retreat[2]:
                 outcome, detail = "halted", trip
                 break
+            elif elapsed - tripped_at < pause:  # the wheels hold while the body settles
+                linear, angular = 0.0, 0.0
             else:
-                linear, angular = -self.robot.cruise_speed, 0.0
+                linear, angular = -back_speed, 0.0
             if elapsed >= limit:
                 outcome = "halted" if retreat else "gave_up"
                 detail = f"time limit {limit:.1f} s" + (f" while backing off ({trip})" if retreat else "")
@@ -299,7 +305,9 @@ class PhysicsDynamics:
             pitches.append(rpy[1])
             if outcome is not None:
                 break
-            if retreat is not None and guard is not None:  # the guard watches its own back-off once re-armed
+            # the guard watches its own back-off (not the pause, where the settling body hovers at the limit) once
+            # re-armed
+            if retreat is not None and guard is not None and elapsed - tripped_at >= pause:
                 if tilt <= guard:
                     rearmed = True
                 elif rearmed:
@@ -314,7 +322,10 @@ class PhysicsDynamics:
                 else:
                     hazard = np.array([x, y])
                     retreat = (x, y, min(self.robot.guard_retreat, math.hypot(x - drive_from[0], y - drive_from[1])))
-                anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, yaw, elapsed  # backing off is progress
+                # backing off is progress; the stuck window opens once the pause is over
+                anchor_x, anchor_y, anchor_yaw, anchor_t = x, y, yaw, elapsed + pause
+                tripped_at = elapsed
+                limit = max(limit, elapsed + pause + 2.0 * retreat[2] / back_speed + self._tick)
                 continue
             progress = math.hypot(x - anchor_x, y - anchor_y) + abs(wrap_angle(yaw - anchor_yaw)) * arm
             if progress >= cfg.stuck_distance:

@@ -1,6 +1,7 @@
 """The rover's tilt fault protection (``robot.tilt_guard_deg``): a drive halts where the tilt passes the guard,
-backs ``robot.guard_retreat`` metres along its own track (tripped while turning in place, straight back), and
-reports where the guard tripped (``hazard_xy``).
+backs ``robot.guard_retreat`` metres along its own track (tripped while turning in place, straight back; after
+``robot.guard_pause_s`` standing still, at ``robot.guard_retreat_speed``), and reports where the guard tripped
+(``hazard_xy``).
 Both dynamics models, on a terrain whose cross slope grows along the drive until the rover would tip."""
 
 import math
@@ -46,10 +47,12 @@ def test_without_the_guard_the_drive_tips_over(ramp):
     assert result.hazard_xy is None
 
 
-@pytest.mark.parametrize("retreat", [0.0, 1.2, 50.0])
-def test_kinematic_guard_halts_backs_off_and_reports_where(ramp, retreat):
+@pytest.mark.parametrize(
+    "retreat, pause, speed", [(0.0, 0.0, None), (1.2, 0.0, None), (50.0, 0.0, None), (1.2, 0.5, 0.15)]
+)
+def test_kinematic_guard_halts_backs_off_and_reports_where(ramp, retreat, pause, speed):
     guard = 20.0
-    rover = robot(tilt_guard_deg=guard, guard_retreat=retreat)
+    rover = robot(tilt_guard_deg=guard, guard_retreat=retreat, guard_pause_s=pause, guard_retreat_speed=speed)
     dyn, ctl = make("kinematic", ramp, rover)
     dyn.reset(np.array([-2.0, 0.0]), 0.0)
     result = dyn.execute(np.array([6.0, 0.0]), ctl)
@@ -73,7 +76,9 @@ def test_kinematic_guard_halts_backs_off_and_reports_where(ramp, retreat):
     assert trace_x[-1] == pytest.approx(dyn.state.xy[0])
     assert result.path_length == pytest.approx((stop + 2.0) + (stop - dyn.state.xy[0]), abs=1e-6)
     assert np.all(np.diff(result.trace_t) >= 0)
-    assert result.duration == pytest.approx(result.path_length / rover.cruise_speed, rel=1e-6)
+    out, back = stop + 2.0, stop - dyn.state.xy[0]
+    backing = pause + back / rover.retreat_speed if retreat > 0 else 0.0  # a rover that backs off no metres
+    assert result.duration == pytest.approx(out / rover.cruise_speed + backing, rel=1e-6)
     assert result.max_tilt_deg <= guard
 
 
@@ -116,18 +121,18 @@ def test_the_guard_re_arms_while_backing_off():
     x = np.linspace(-10.0, 10.0, 401)
     gx, gy = np.meshgrid(x, x)
     world = World("cross", Terrain(np.where(gx < -0.6, math.tan(math.radians(20.0)) * gy, 0.0), 20.0, 20.0))
-    dyn, _ = make("kinematic", world, robot(tilt_guard_deg=15.0))
+    dyn, _ = make("kinematic", world, robot(tilt_guard_deg=15.0, guard_pause_s=0.3, guard_retreat_speed=0.5))
     dyn.reset(np.array([0.0, 0.0]), 0.0)
     hazard = np.array([0.5, 0.0])
     halted = WaypointResult(
         "halted", 1.0, 0.0, np.zeros((1, 2)), np.zeros(1), np.zeros((1, 2)), "trip", np.zeros(1), hazard_xy=hazard
     )
-    result = dyn._back_off(halted, 0.5)
+    result = dyn._back_off(halted)
     assert result.outcome == "halted" and result.detail == "trip"
     assert result.path_length < 1.0 and dyn.state.tilt_deg < 15.0  # short of the 1.2 m, still under the guard
     assert result.trace_tilt_deg.max() < 15.0
     np.testing.assert_allclose(result.hazard_xy, hazard)
-    assert result.duration == pytest.approx(1.0 + result.path_length / 0.5)
+    assert result.duration == pytest.approx(1.0 + 0.3 + result.path_length / 0.5)  # the halt, the pause, 0.5 m/s
 
 
 def test_backing_off_a_turn_halt_stops_at_a_slope_too_steep_to_climb_backwards():
@@ -186,12 +191,37 @@ def test_physics_guard_halts_and_backs_off(ramp):
         dyn.close()
 
 
+def test_physics_guard_pauses_then_backs_off_slowly(ramp):
+    """With ``guard_pause_s`` the wheels hold after the trip (the rover stays where it stopped), then it backs
+    off at ``guard_retreat_speed``: the same halt as without, taking the pause and the slower reverse longer."""
+    guard, retreat, pause, speed = 15.0, 1.0, 1.0, 0.15
+    durations = {}
+    for key, extra in {"at once": {}, "paused": {"guard_pause_s": pause, "guard_retreat_speed": speed}}.items():
+        dyn, ctl = make("physics", ramp, robot(tilt_guard_deg=guard, guard_retreat=retreat, **extra))
+        try:
+            dyn.reset(np.array([-2.0, 0.0]), 0.0)
+            result = dyn.execute(np.array([6.0, 0.0]), ctl)
+            assert result.outcome == "halted" and "tilt guard" in result.detail, result.detail
+            assert result.hazard_xy[0] - dyn.state.xy[0] >= retreat - 0.05  # the whole back-off, in time
+            durations[key] = result.duration
+            if extra:
+                trip = int(np.argmax(result.trace_tilt_deg > guard))
+                held = result.trace_xy[trip : trip + round(pause / dyn._tick)]
+                assert np.hypot(*(held - held[0]).T).max() < 0.05  # standing still through the pause
+        finally:
+            dyn.close()
+    slower = pause + retreat * (1.0 / speed - 1.0 / robot().cruise_speed)  # ~4.6 s
+    assert durations["paused"] - durations["at once"] == pytest.approx(slower, rel=0.25)
+
+
 @pytest.mark.parametrize(
     "overrides, key",
     [
         ({"tilt_guard_deg": 35.0}, "robot.tilt_guard_deg"),
         ({"tilt_guard_deg": 0.0}, "robot.tilt_guard_deg"),
         ({"guard_retreat": -1.0}, "robot.guard_retreat"),
+        ({"guard_pause_s": -0.5}, "robot.guard_pause_s"),
+        ({"guard_retreat_speed": 0.0}, "robot.guard_retreat_speed"),
     ],
 )
 def test_bad_guard_settings_name_their_key(overrides, key):
