@@ -118,6 +118,32 @@ class HeightMemory:
         use = (kx == jx) & (ky == jy) & np.isfinite(bilinear) & known if n > 1 else np.zeros(x.shape, dtype=bool)
         return np.where(use, bilinear, own), known
 
+    def peaks_at(self, x: np.ndarray, y: np.ndarray, min_known: int = 7) -> np.ndarray:
+        """How far the cell under each world point stands above the median of its 8 neighbours (m; same shape).
+
+        Raw cells, not :meth:`heights_at`'s bilinear heights, which smear a rock one or two cells wide over the
+        ground around it. 0 where the point's cell is unknown, on the map's edge, or has fewer than
+        ``min_known`` known neighbours: a cell beside unseen ground (a shadow) has no ground to be judged
+        against. A slope or a ridge has neighbours on both sides of the cell's height; a rock does not."""
+        x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        if self.origin is None or self.n < 3:
+            return np.zeros(x.shape)
+        n = self.n
+        ix = np.floor((x - self.origin[0]) / self.cell_size)
+        iy = np.floor((y - self.origin[1]) / self.cell_size)
+        inner = (ix >= 1) & (ix <= n - 2) & (iy >= 1) & (iy <= n - 2)
+        cell = (np.where(inner, iy, 1) * n + np.where(inner, ix, 1)).astype(np.int64).ravel()
+        around = cell[None, :] + np.array([-n - 1, -n, -n + 1, -1, 1, n - 1, n, n + 1])[:, None]  # (8, K)
+        ring = np.sort(self.height.take(around).astype(np.float64), axis=0)  # NaN (unknown) sorts last
+        known = np.isfinite(ring).sum(axis=0)
+        cols = np.arange(ring.shape[1])
+        lo, hi = ring[(known - 1) // 2, cols], ring[known // 2, cols]  # the median of the known (garbage if none)
+        own = self.height.take(cell).astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            peak = own - 0.5 * (lo + hi)
+        judged = inner.ravel() & np.isfinite(own) & (known >= max(int(min_known), 1))
+        return np.where(judged, peak, 0.0).reshape(x.shape)
+
     @staticmethod
     def to_world(levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
         """Points in the heading-aligned, gravity-up frame at the rover base -> the world frame (same dtype)."""

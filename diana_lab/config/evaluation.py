@@ -40,10 +40,14 @@ class ShieldConfig:
     # m: among the allowed candidates, drive the first that ends at least this far from every place the rover
     # stood at an earlier decision of the episode (the first allowed if none does): no loops back; 0: off
     revisit_radius: float = 0.0
+    # m: also veto a drive where a cell of the map within the rover's footprint stands more than this above the
+    # median of its 8 neighbours (a rock, which the obstacle check misses when a wheel probe lies on it); 0: off
+    peak_height: float = 0.0
 
     def __post_init__(self) -> None:
         non_negative("eval.shield.min_range", self.min_range)
         non_negative("eval.shield.revisit_radius", self.revisit_radius)
+        non_negative("eval.shield.peak_height", self.peak_height)
         non_negative("eval.shield.hazard_radius", self.hazard_radius)
         non_negative("eval.shield.obstacle_height", self.obstacle_height)
         positive("eval.shield.cell_size", self.cell_size)

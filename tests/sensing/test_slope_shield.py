@@ -183,6 +183,53 @@ def test_a_rock_beside_the_tracks_is_an_obstacle_the_tilt_check_alone_lets_throu
     assert s.obstacle_m(np.array([5.0, 5.0]), through) == 0.0  # nothing known of that way: passes
 
 
+def test_a_rock_under_the_axle_probes_is_a_peak_the_obstacle_check_misses():
+    """A 0.25 m rock one 0.2 m cell wide on the drive's centre line: the axle probes, the obstacle check's
+    reference, read the rock's own (bilinearly smeared) height, so the rise it measures stays under 0.12 m (the
+    craters collisions the obstacle check let through, README "What is left"); the rock's cell stands over its
+    neighbours' median by its whole height, and the peak check vetoes the drive."""
+    rock = lambda x, y: np.where((y > 0.0) & (y < 0.2) & (x > 1.2) & (x < 1.4), 0.25, 0.0)  # noqa: E731
+    start, through, away = np.zeros(2), np.array([3.0, 0.0]), np.array([0.0, -3.0])
+    s = seen(rock, obstacle_height=0.12, peak_height=0.10)
+    assert s.obstacle_m(start, through) <= 0.12 and s.peak_m(start, through) == pytest.approx(0.25, abs=1e-6)
+    assert not s.allows(start, through)
+    assert s.peak_m(start, away) == 0.0 and s.allows(start, away)
+    assert s.choose([0, 1], np.array([through, away]), start) == 1
+    assert seen(rock, obstacle_height=0.12).allows(start, through)  # without the peak check it passes
+
+
+@pytest.mark.parametrize(
+    "name, fn",
+    [
+        ("slope", lambda x, y: math.tan(math.radians(24.0)) * x),
+        ("ridge", lambda x, y: 0.3 - math.tan(math.radians(30.0)) * np.abs(x - 1.5)),  # a 30 deg crest across
+        ("step", lambda x, y: np.where(x > 1.5, 0.3, 0.0)),  # a ledge: half the neighbours up, half down
+    ],
+)
+def test_slopes_ridges_and_steps_are_not_peaks(name, fn):
+    """Not at the preset's 0.10 m: a cell on a slope or a step has neighbours above and below it; on a crest,
+    the two along it are as high, so the median sits at most halfway down its sides."""
+    s = seen(fn, peak_height=0.10)
+    assert s.peak_m(np.zeros(2), np.array([3.0, 0.0])) <= 0.07, name
+
+
+def test_a_peak_beside_unseen_ground_is_not_judged():
+    """A cell needs 7 of its 8 neighbours known: a rock whose far side was never seen (its shadow) is not judged
+    by it, nor is a map with nothing around the cell."""
+    from diana_lab.height_memory import HeightMemory
+
+    m = HeightMemory(0.2, 4.0, 1, 1, 0.0, 0.0)  # cells 0.2 m from (-4, -4): the rock's is [0, 0.2) x [0, 0.2)
+    pts = ground(lambda x, y: np.where((x > 0.0) & (x < 0.2) & (y > 0.0) & (y < 0.2), 0.3, 0.0), half=1.0)
+    m.update(pts[pts[:, 0] < 0.2], np.zeros(2))  # the rock's cell and the ground on its near side only
+    rock_x, rock_y = np.array([0.1]), np.array([0.1])
+    assert m.peaks_at(rock_x, rock_y)[0] == 0.0  # 5 of 8 neighbours known
+    assert m.peaks_at(rock_x, rock_y, min_known=5)[0] == pytest.approx(0.3, abs=1e-6)
+    m.update(pts, np.zeros(2))
+    # seen all round it is; the map's edge cell and a flat cell are not peaks
+    got = m.peaks_at(np.array([0.1, 3.9, 0.5]), np.array([0.1, 3.9, 0.5]))
+    assert got.tolist() == pytest.approx([0.3, 0.0, 0.0], abs=1e-6)
+
+
 def test_one_lookup_for_both_checks_gives_the_verdicts_of_each_check_alone():
     """allows() reads the tilt and the obstacle rise from one map lookup; on rough, partly seen ground its
     verdict for every candidate drive is the one the separate checks (steepest_deg, obstacle_m) give."""
@@ -263,6 +310,7 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("obstacle_height", -0.1),
         ("min_range", -1.0),
         ("revisit_radius", -0.5),
+        ("peak_height", -0.1),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
