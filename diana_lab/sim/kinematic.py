@@ -10,15 +10,14 @@ samples). The first sample that violates a limit ends the waypoint:
 * ``collision``: an obstacle taller than ``robot.ground_clearance`` within ``robot.radius`` of the centre;
 * ``out_of_bounds``: the centre leaves the terrain;
 * ``halted`` (with ``robot.tilt_guard_deg``, the rover's tilt fault protection): the tilt passes the guard
-  (below the tip-over limit). The rover stops at the sample before and, after ``robot.guard_pause_s`` standing
-  still, backs ``robot.guard_retreat`` metres along its own track at ``robot.retreat_speed`` (the trace's times
-  hold both; the geometry is the physics mode's without the jerk the pause exists for); the trace holds the
-  drive out and back. A halt before the drive began (while turning
-  in place) backs it the same distance straight behind its heading: standing still, the next turn on the same
-  steep spot trips the guard again, and a rover that never leaves it waits out the episode. In both modes the
-  guard re-arms during a back-off once the tilt is back under it, and stops the back-off where it passes again;
-  a slope too steep to climb backwards stops it too, and ``tipover``, ``collision`` or ``out_of_bounds`` end
-  the waypoint as themselves.
+  (below the tip-over limit). The rover stops at the sample before, stands still ``robot.guard_pause_s``
+  seconds and backs ``robot.guard_retreat`` metres along its own track at ``robot.retreat_speed`` (the pause
+  and the speed count in time only: this model has no body to settle); the trace holds the drive out and back.
+  A halt before the drive began (while turning in place) backs it the same distance straight behind its
+  heading: standing still, the next turn on the same steep spot trips the guard again, and a rover that never
+  leaves it waits out the episode. In both modes the guard re-arms during a back-off once the tilt is back
+  under it, and stops the back-off where it passes again; a slope too steep to climb backwards stops it too,
+  and ``tipover``, ``collision`` or ``out_of_bounds`` end the waypoint as themselves.
 
 ``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``; while
 turning in place, half a rover length towards the heading it was turning to).

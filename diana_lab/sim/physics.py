@@ -305,8 +305,7 @@ class PhysicsDynamics:
             pitches.append(rpy[1])
             if outcome is not None:
                 break
-            # the guard watches its own back-off (not the pause, where the settling body hovers at the limit) once
-            # re-armed
+            # once re-armed, the guard watches its own back-off (after the pause: a settling body hovers at the limit)
             if retreat is not None and guard is not None and elapsed - tripped_at >= pause:
                 if tilt <= guard:
                     rearmed = True
