@@ -43,10 +43,16 @@ backs off a hazard, the policy sends it back to where it came from, and the same
 Preferring new places is a tabu list over positions, the oldest cure for a greedy local search that cycles.
 Validation suites (100 episodes each), v0.6 -> 1 m: the yard ``eval.seed=777 / 778 / 779`` 0.75 / 0.75 / 0.84
 -> 0.85 / 0.82 / 0.85, with ``sensor.noise=realistic`` (777) 0.75 -> 0.83, craters ``world.seed=3`` unchanged.
+
+The final approach (``approach_radius`` > 0, given the goal): with the goal that near, the shortest candidate
+passing within ``approach_tolerance`` of it is tried before the policy's (:meth:`SlopeShield.approach`), the place
+rule aside. Validation suites, SPL: the yard ``eval.seed=777 / 778 / 779`` 0.800 / 0.738 / 0.792 -> 0.828 / 0.773
+/ 0.821 at 5 m (success 0.91 / 0.88 / 0.91 -> 0.92 / 0.89 / 0.91).
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -87,6 +93,8 @@ class ShieldSettings:
     min_range: float = 0.0  # m: returns nearer the sensor are not mapped; 0: all (older sidecars)
     revisit_radius: float = 0.0  # m: prefer drives ending this far from where the rover stood; 0: off (older sidecars)
     peak_height: float = 0.0  # m a map cell in the footprint may stand over its neighbours' median; 0: off (older)
+    approach_radius: float = 0.0  # m: the goal this near, drive straight for it when allowed; 0: off (older sidecars)
+    approach_tolerance: float = 0.3  # m: how near the goal the final approach's drive must pass
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -104,6 +112,8 @@ class ShieldSettings:
             float(cfg.min_range),
             float(cfg.revisit_radius),
             float(cfg.peak_height),
+            float(cfg.approach_radius),
+            float(cfg.approach_tolerance),
         )
 
     @classmethod
@@ -129,6 +139,11 @@ class SlopeShield:
                 "SlopeShield: expected peak_height >= 0 and, with it, a positive footprint_radius, got "
                 f"{settings.peak_height}, {settings.footprint_radius}"
             )
+        if not (settings.approach_radius >= 0 and settings.approach_tolerance > 0):
+            raise ValueError(
+                "SlopeShield: expected approach_radius >= 0 and approach_tolerance > 0, got "
+                f"{settings.approach_radius}, {settings.approach_tolerance}"
+            )
         if not settings.hazard_radius >= 0:
             raise ValueError(f"SlopeShield: expected hazard_radius >= 0, got {settings.hazard_radius}")
         if not (settings.obstacle_height >= 0 and (settings.obstacle_height == 0 or settings.footprint_radius > 0)):
@@ -150,6 +165,7 @@ class SlopeShield:
         self.vetoes = 0  # of which drove another candidate than the policy's first
         self.revisits = 0  # of which the place rule alone turned from the first allowed candidate
         self.fallbacks = 0  # decisions that found no candidate allowed (the tilt check dropped, see _fallback)
+        self.approaches = 0  # decisions the final approach made (the goal within approach_radius, its drive allowed)
         self.hazards = np.zeros((0, 2))  # this episode's hazards felt (world xy)
         self._stood = np.zeros((0, 2))  # where the rover stood at this episode's decisions (world xy), each once
 
@@ -363,10 +379,17 @@ class SlopeShield:
         dy = ends[:, 1, None] - self._stood[None, :, 1]
         return (dx * dx + dy * dy).min(axis=1) >= self.cfg.revisit_radius**2
 
-    def choose(self, ranked: Sequence[int], offsets: np.ndarray, start_xy: np.ndarray) -> int:
+    def choose(
+        self,
+        ranked: Sequence[int],
+        offsets: np.ndarray,
+        start_xy: np.ndarray,
+        goal_xy: Sequence[float] | None = None,
+    ) -> int:
         """The first of ``ranked`` (candidate indices, the policy's choice first) among its first ``top_k``
         whose drive ``offsets[k]`` (world frame, ``(n, 2)``) is allowed and, with ``revisit_radius``, ends away
-        from the places stood on (else the first allowed); if none is allowed, :meth:`_fallback`'s."""
+        from the places stood on (else the first allowed); if none is allowed, :meth:`_fallback`'s. With
+        ``approach_radius`` and the goal (world ``goal_xy``) that near, :meth:`approach`'s drive comes first."""
         if len(ranked) == 0:
             raise ValueError("SlopeShield.choose: expected at least one ranked candidate, got none")
         self.decisions += 1
@@ -376,6 +399,11 @@ class SlopeShield:
         fresh = self.fresh(start, offsets[top])
         if self.cfg.revisit_radius > 0 and not (len(self._stood) and (self._stood[-1] == start).all()):
             self._stood = np.concatenate([self._stood, start[None]])  # a rover that has not moved adds nothing
+        if goal_xy is not None and self.cfg.approach_radius > 0:
+            j = self.approach(offsets[top], start, goal_xy)
+            if j is not None:
+                self.approaches += 1
+                return int(top[j])
         # the policy's own choice first (it passes ~6 times in 7 on the Mars yard), then the rest in one lookup
         first_allowed = self.allows(start, offsets[top[0]])
         if first_allowed and fresh[0]:
@@ -405,6 +433,29 @@ class SlopeShield:
             return int(top[0])
         self.vetoes += 1
         return int(top[pick])
+
+    def approach(self, offsets: np.ndarray, start_xy: np.ndarray, goal_xy: Sequence[float]) -> int | None:
+        """The final approach: with the goal within ``approach_radius`` of ``start_xy``, the index into
+        ``offsets`` ``(K, 2)`` (world frame) of the shortest drive passing within ``approach_tolerance`` of it
+        (none does: the one passing nearest), if the checks allow it (the place rule does not apply: the goal
+        ends the loop); else None.
+
+        Why: the policy's candidates are ranked for the way, not for the goal itself. Within reach of it the
+        reference policy spent a median 0.7 m (mean 2.4 m) more than the straight way on the Mars yard's
+        successful episodes (its SPL lost 0.045 there); a rover's navigation drives the last metres straight
+        when its safety checks allow them.
+        """
+        offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
+        g = np.asarray(goal_xy, dtype=np.float64)[:2] - np.asarray(start_xy, dtype=np.float64)[:2]
+        if len(offsets) == 0 or math.hypot(g[0], g[1]) > self.cfg.approach_radius:
+            return None
+        sq = np.maximum((offsets * offsets).sum(axis=1), 1e-18)
+        t = np.clip(offsets @ g / sq, 0.0, 1.0)  # where along each drive it comes closest to the goal
+        closest = np.hypot(t * offsets[:, 0] - g[0], t * offsets[:, 1] - g[1])
+        passing = np.flatnonzero(closest <= max(self.cfg.approach_tolerance, float(closest.min())))
+        length = np.round(np.sqrt(sq[passing]), 6)  # to the micrometre: turned candidates of one ring tie
+        j = int(passing[np.lexsort((closest[passing], length))[0]])  # the shortest; then the nearest
+        return j if self.allows(start_xy, offsets[j]) else None
 
     def _fallback(self, start: np.ndarray, offsets: np.ndarray, fresh: np.ndarray) -> int:
         """No candidate of ``offsets`` (the top ``top_k``, policy order) is allowed: the index of the first not

@@ -43,8 +43,14 @@ class ShieldConfig:
     # m: also veto a drive where a cell of the map within the rover's footprint stands more than this above the
     # median of its 8 neighbours (a rock, which the obstacle check misses when a wheel probe lies on it); 0: off
     peak_height: float = 0.0
+    # m: with the goal this near, first the shortest candidate whose straight drive passes within
+    # ``approach_tolerance`` of it (none does: the one passing nearest), if the checks allow it; 0: off
+    approach_radius: float = 0.0
+    approach_tolerance: float = 0.3  # m; under episode.goal_tolerance, so that the drive's own error is allowed for
 
     def __post_init__(self) -> None:
+        non_negative("eval.shield.approach_radius", self.approach_radius)
+        positive("eval.shield.approach_tolerance", self.approach_tolerance)
         non_negative("eval.shield.min_range", self.min_range)
         non_negative("eval.shield.revisit_radius", self.revisit_radius)
         non_negative("eval.shield.peak_height", self.peak_height)

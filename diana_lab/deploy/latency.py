@@ -76,7 +76,7 @@ def measure_latency(
         p, pts = Pose.of(pose), check_cloud(frame)
         obs = nav._observation(p, goal, pts)
         t1 = time.perf_counter()
-        nav._waypoint(p, nav._decide(p, obs, pts))
+        nav._waypoint(p, nav._decide(p, obs, pts, goal))
         t2 = time.perf_counter()
         if i >= 0:
             total[i], encode[i] = t2 - t0, t1 - t0

@@ -136,10 +136,11 @@ class Navigator:
         """World waypoint = position + offset (turned by the yaw when the action frame is the rover's)."""
         return self._waypoint(Pose.of(pose), offset)
 
-    def decide(self, pose: PoseLike, obs: dict[str, np.ndarray], points: Any) -> np.ndarray:
+    def decide(self, pose: PoseLike, obs: dict[str, np.ndarray], points: Any, goal: Any = None) -> np.ndarray:
         """The waypoint offset (action frame, float64) for an observation: the graph's, or behind the slope
-        shield the candidate it lets through, after mapping ``points`` (the sensor-frame cloud) into its map."""
-        return self._decide(Pose.of(pose), obs, check_cloud(points))
+        shield the candidate it lets through, after mapping ``points`` (the sensor-frame cloud) into its map.
+        ``goal`` (world ``(x, y)``) lets the shield's final approach (``approach_radius``) drive for it."""
+        return self._decide(Pose.of(pose), obs, check_cloud(points), None if goal is None else check_goal(goal))
 
     # ------------------------------------------------------------------ the call a rover makes
     def next_waypoint(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> np.ndarray:
@@ -154,7 +155,8 @@ class Navigator:
         """
         p = Pose.of(pose)  # every input checked once; the steps below trust them
         pts = check_cloud(cloud, drop_invalid)
-        return self._waypoint(p, self._decide(p, self._observation(p, check_goal(goal), pts), pts))
+        g = check_goal(goal)
+        return self._waypoint(p, self._decide(p, self._observation(p, g, pts), pts, g))
 
     def _observation(self, p: Pose, goal: np.ndarray, pts: np.ndarray) -> dict[str, np.ndarray]:
         return {
@@ -169,7 +171,7 @@ class Navigator:
             local = np.array([c * local[0] - s * local[1], s * local[0] + c * local[1]])
         return p.xy + local
 
-    def _decide(self, p: Pose, obs: dict[str, np.ndarray], pts: np.ndarray) -> np.ndarray:
+    def _decide(self, p: Pose, obs: dict[str, np.ndarray], pts: np.ndarray, goal: np.ndarray | None) -> np.ndarray:
         if self.shield is None:
             return self.offset(obs)
         fused = getattr(self.encoder, "fused_points", None)  # the encoding's own world points, if the same
@@ -183,7 +185,7 @@ class Navigator:
             self.shield.observe_rover(self.encoder.visible_rover_points(pts), (p.x, p.y, p.z), rpy, mount)
         ranked = self.ranking(obs)[: self.shield.cfg.top_k]
         local = self._candidates[ranked]
-        j = self.shield.choose(np.arange(len(ranked)), turned(local, p.yaw) if self._rotate else local, p.xy)
+        j = self.shield.choose(np.arange(len(ranked)), turned(local, p.yaw) if self._rotate else local, p.xy, goal)
         return self._candidates32[ranked[j]].astype(np.float64)
 
     def ranking(self, obs: dict[str, np.ndarray]) -> np.ndarray:

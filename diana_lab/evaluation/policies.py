@@ -131,7 +131,7 @@ class ShieldedPolicy:
             )
         self.policy, self.cfg = policy, cfg
         self.shield: Any = None  # built on the first reset, from the env's robot
-        self._vetoes_before = self._revisits_before = self._fallbacks_before = 0
+        self._vetoes_before = self._revisits_before = self._fallbacks_before = self._approaches_before = 0
 
     @property
     def name(self) -> str:
@@ -154,17 +154,20 @@ class ShieldedPolicy:
             self.shield = SlopeShield(ShieldSettings.from_config(self.cfg, env.unwrapped.robot))
         self.shield.reset()
         self._vetoes_before, self._revisits_before = self.shield.vetoes, self.shield.revisits
-        self._fallbacks_before = self.shield.fallbacks
+        self._fallbacks_before, self._approaches_before = self.shield.fallbacks, self.shield.approaches
 
     def episode_stats(self) -> dict[str, int]:
         """The evaluation's extra columns for the episode just run: ``shield_vetoes``, the decisions the shield
         changed (each step is one decision), and ``shield_revisits``, those of them its place rule alone changed
         (``eval.shield.revisit_radius``: the first allowed candidate ended where the rover had stood), and
-        ``shield_fallbacks``, the decisions that found no candidate allowed (its tilt check then dropped)."""
+        ``shield_fallbacks``, the decisions that found no candidate allowed (its tilt check then dropped), and
+        ``shield_approaches``, those its final approach made (``eval.shield.approach_radius``: the goal in reach,
+        the straight drive for it allowed; not counted as vetoes)."""
         return {
             "shield_vetoes": self.shield.vetoes - self._vetoes_before,
             "shield_revisits": self.shield.revisits - self._revisits_before,
             "shield_fallbacks": self.shield.fallbacks - self._fallbacks_before,
+            "shield_approaches": self.shield.approaches - self._approaches_before,
         }
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
@@ -178,7 +181,7 @@ class ShieldedPolicy:
         if last is not None:  # where the wheels met ground they could not drive (the tilt guard, a slope)
             self.shield.mark_hazard(last.hazard_xy)
         est = base.pose_estimate
-        k = self.shield.choose(self.policy.ranking(obs), base.mapping.world_offsets(est.yaw), est.xy)
+        k = self.shield.choose(self.policy.ranking(obs), base.mapping.world_offsets(est.yaw), est.xy, base.goal)
         return np.asarray(k, dtype=np.int64).reshape(())
 
 

@@ -82,7 +82,7 @@ def test_the_card_holds_every_suite_with_every_rate():
 @pytest.mark.slow
 def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
     """Deterministic policy, fixed suite: the figures come back (within one episode, for other CPUs' float
-    rounding), and they clear the issue's bar for this suite, 90 % success (v0.8: 20 of 20; v0.7 and v0.6: 19;
+    rounding), and they clear the issue's bar for this suite, 90 % success (v0.10 to v0.8: 20 of 20; v0.7 and v0.6: 19;
     v0.5: 18)."""
     want = card()["results"]["mars_yard_20"]
     out = tmp_path / "summary.json"
@@ -125,6 +125,7 @@ def test_the_exported_policy_drives_like_torch_on_1000_mars_yard_observations(tm
     print(f"shipped policy parity over 1000 observations: {err}; vetoes {nav.shield.vetoes}")
     assert err["waypoint"] <= TOLERANCE_M
     assert nav.shield.vetoes == loaded.policy.shield.vetoes > 0  # the sidecar's shield drove it, as in the sim
+    assert nav.shield.approaches == loaded.policy.shield.approaches > 0  # its final approach too
     # not degenerate: the recording spans many episodes and the policy picks many candidates
     assert sum(rec.starts) >= 10
     assert len(np.unique(np.round(np.asarray(rec.waypoints) - np.asarray(rec.poses)[:, :2], 3), axis=0)) > 50
@@ -184,8 +185,8 @@ def test_without_the_shield_it_is_the_bare_policy_and_baselines_say_they_run_wit
 
 
 def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_path):
-    """``shield_vetoes``, ``shield_revisits`` and ``shield_fallbacks`` per episode in the rows, their rates
-    (per step, with intervals) in the summary; all absent without the shield."""
+    """``shield_vetoes``, ``shield_revisits``, ``shield_fallbacks`` and ``shield_approaches`` per episode in the rows,
+    their rates (per step, with intervals) in the summary; all absent without the shield."""
     from diana_lab.evaluation import evaluate
 
     rates = {}
@@ -215,9 +216,15 @@ def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_p
             fallbacks = loaded.policy.shield.fallbacks
             assert summary["shield_fallback_rate"] == pytest.approx(fallbacks / sum_steps(rows))
             assert fallbacks <= loaded.policy.shield.decisions
+            # the final approach (the preset's eval.shield.approach_radius), made on the way to the goals reached
+            assert "shield_approaches" in rows[0] and loaded.policy.shield.cfg.approach_radius == 5.0
+            approaches = loaded.policy.shield.approaches
+            assert summary["shield_approach_rate"] == pytest.approx(approaches / sum_steps(rows))
+            assert summary["success_rate"] > 0 and 0 < approaches <= loaded.policy.shield.decisions
         else:
             assert "shield_vetoes" not in rows[0] and "shield_veto_rate" not in summary
             assert "shield_revisit_rate" not in summary and "shield_fallback_rate" not in summary
+            assert "shield_approach_rate" not in summary
     assert rates[True] is not None and rates[False] is None
 
 

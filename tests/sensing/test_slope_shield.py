@@ -146,6 +146,59 @@ def test_without_a_revisit_radius_places_are_not_kept():
     assert s.fresh(np.array([2.0, 0.0]), offsets).all() and (s.vetoes, s.revisits) == (0, 0)
 
 
+def ring(headings: int = 32, distances: tuple[float, ...] = (1.0, 2.0, 3.0)) -> np.ndarray:
+    from diana_lab.candidates import candidate_offsets
+
+    return candidate_offsets(headings, distances)
+
+
+@pytest.mark.parametrize("goal", [(2.4, 0.9), (-1.3, 0.2), (0.4, -2.95), (1.0, 1.0)])
+def test_the_final_approach_drives_the_shortest_candidate_passing_the_goal(goal):
+    s = seen(lambda x, y: np.zeros_like(x), approach_radius=5.0, approach_tolerance=0.3, top_k=96)
+    offsets, g = ring(), np.asarray(goal)
+    k = s.choose(np.arange(96), offsets, np.zeros(2), g)  # the policy wants straight ahead (+x), 1 m
+    o = offsets[k]
+    t = np.clip(o @ g / (o @ o), 0.0, 1.0)
+    assert np.hypot(*(t * o - g)) <= 0.3  # it passes the goal, within the tolerance
+    # and no shorter candidate does
+    for other in offsets[np.hypot(offsets[:, 0], offsets[:, 1]) < np.hypot(*o) - 1e-6]:
+        t = np.clip(other @ g / (other @ other), 0.0, 1.0)
+        assert np.hypot(*(t * other - g)) > 0.3
+    assert (s.approaches, s.vetoes, s.decisions) == (1, 0, 1)
+
+
+def test_beyond_reach_the_final_approach_drives_the_candidate_ending_nearest_the_goal():
+    s = seen(lambda x, y: np.zeros_like(x), approach_radius=5.0, top_k=96)
+    offsets = ring()
+    goal = 4.5 * np.array([math.cos(0.2), math.sin(0.2)])  # 4.5 m out, 11.5 deg left: nearest the 2nd bearing
+    k = s.choose(np.arange(96), offsets, np.zeros(2), goal)
+    assert offsets[k] == pytest.approx(3.0 * np.array([math.cos(math.pi / 16), math.sin(math.pi / 16)]))
+    assert s.choose(np.arange(96), offsets, np.zeros(2), np.array([5.2, 0.0])) == 0  # beyond approach_radius
+    # only the candidates the shield is given (the policy's top_k) are driven
+    assert s.choose([0, 1, 2], offsets, np.zeros(2), np.array([2.5, 1.0])) == 2  # 3 m ahead passes nearest
+    assert s.approaches == 2
+
+
+def test_the_final_approach_yields_to_the_checks_and_to_the_policy_without_a_goal():
+    s = seen(lambda x, y: np.where(x > 1.0, 0.5, 0.0), approach_radius=5.0)  # a wall 1 m ahead (+x)
+    offsets = ring()
+    left = 8 * 3 + 2  # 3 m to the left (+y)
+    k = s.choose([1, 2, left], offsets, np.zeros(2), np.array([2.5, 0.0]))  # the goal lies behind the wall
+    assert k == left and s.approaches == 0 and s.vetoes == 1  # the way to it is vetoed: the policy's order
+    assert s.choose([left], offsets, np.zeros(2)) == left  # no goal given: no approach
+    off = seen(lambda x, y: np.zeros_like(x))  # approach_radius 0: off
+    assert off.choose([left], offsets, np.zeros(2), np.array([2.5, 0.0])) == left and off.approaches == 0
+
+
+def test_the_final_approach_ignores_the_place_rule():
+    s = seen(lambda x, y: np.zeros_like(x), approach_radius=5.0, revisit_radius=1.0, top_k=96)
+    offsets = ring()
+    s.choose([0], offsets, np.zeros(2))  # stood at the origin
+    # from 2 m ahead, the goal lies 0.2 m from where the rover stood: the approach drives back all the same
+    k = s.choose(np.arange(96), offsets, np.array([2.0, 0.0]), np.array([0.2, 0.0]))
+    assert offsets[k] == pytest.approx([-2.0, 0.0], abs=1e-9) and s.revisits == 0
+
+
 def test_a_hazard_felt_vetoes_the_drives_that_pass_near_it_until_reset():
     """Where the wheels met ground they could not drive (the tilt guard, a slope) is kept off, though the map
     shows flat ground there (what the rover tips on is often narrower than the map's cells)."""
@@ -311,6 +364,8 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("min_range", -1.0),
         ("revisit_radius", -0.5),
         ("peak_height", -0.1),
+        ("approach_radius", -1.0),
+        ("approach_tolerance", 0.0),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
