@@ -199,6 +199,19 @@ def test_the_final_approach_ignores_the_place_rule():
     assert offsets[k] == pytest.approx([-2.0, 0.0], abs=1e-9) and s.revisits == 0
 
 
+def test_a_sidecar_written_before_the_final_approach_reads_it_as_off():
+    from dataclasses import asdict
+
+    node = asdict(ShieldSettings.from_config(ShieldConfig(enabled=True, approach_radius=5.0), ROBOT))
+    older = {k: v for k, v in node.items() if k not in ("approach_radius", "approach_tolerance")}
+    settings = ShieldSettings.from_dict(older)
+    assert (settings.approach_radius, settings.approach_tolerance) == (0.0, 0.3)
+    s = SlopeShield(settings)
+    s.observe(ground(lambda x, y: np.zeros_like(x)), np.zeros(2))
+    assert s.choose([5], ring(), np.zeros(2), np.array([2.0, 0.0])) == 5 and s.approaches == 0
+    assert ShieldSettings.from_dict(node).approach_radius == 5.0
+
+
 def test_a_hazard_felt_vetoes_the_drives_that_pass_near_it_until_reset():
     """Where the wheels met ground they could not drive (the tilt guard, a slope) is kept off, though the map
     shows flat ground there (what the rover tips on is often narrower than the map's cells)."""
