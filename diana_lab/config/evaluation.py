@@ -43,7 +43,7 @@ class ShieldConfig:
     # m: also veto a drive where a cell of the map within the rover's footprint stands more than this above the
     # median of its 8 neighbours (a rock, which the obstacle check misses when a wheel probe lies on it); 0: off
     peak_height: float = 0.0
-    # m: with the goal this near, first the shortest candidate whose straight drive passes within
+    # m: with the goal this near, first the shortest of the top_k candidates whose straight drive passes within
     # ``approach_tolerance`` of it (none does: the one passing nearest), if the checks allow it; 0: off
     approach_radius: float = 0.0
     approach_tolerance: float = 0.3  # m; under episode.goal_tolerance, so that the drive's own error is allowed for
