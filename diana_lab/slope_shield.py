@@ -75,6 +75,15 @@ __all__ = ["PEAK_MIN_KNOWN", "ShieldSettings", "SlopeShield"]
 PEAK_MIN_KNOWN = 7
 
 
+def closest_approach(offsets: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """How near each straight drive ``offsets`` ``(K, 2)`` from the rover comes to each of ``points`` ``(P, 2)``
+    (both relative to the rover), ``(K, P)`` metres."""
+    sq = np.maximum((offsets * offsets).sum(axis=1), 1e-18)[:, None]  # (K, 1)
+    t = np.clip((offsets @ points.T) / sq, 0.0, 1.0)  # (K, P): where along each drive it comes closest
+    gap = t[..., None] * offsets[:, None, :] - points[None]
+    return np.hypot(gap[..., 0], gap[..., 1])
+
+
 @dataclass
 class ShieldSettings:
     """What the shield needs, as plain values (``eval.shield`` and the robot's geometry; the sidecar's
@@ -190,12 +199,8 @@ class SlopeShield:
         offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
         if len(self.hazards) == 0 or len(offsets) == 0:
             return np.zeros(len(offsets), dtype=bool)
-        start = np.asarray(start_xy, dtype=np.float64)[:2]
-        rel = self.hazards - start  # (H, 2)
-        sq = np.maximum((offsets * offsets).sum(axis=1), 1e-18)[:, None]  # (K, 1)
-        t = np.clip((offsets @ rel.T) / sq, 0.0, 1.0)  # (K, H): where along each drive it comes closest
-        gap = t[..., None] * offsets[:, None, :] - rel[None]
-        closest = np.hypot(gap[..., 0], gap[..., 1])
+        rel = self.hazards - np.asarray(start_xy, dtype=np.float64)[:2]  # (H, 2)
+        closest = closest_approach(offsets, rel)
         reach = np.minimum(np.hypot(rel[:, 0], rel[:, 1]), self.cfg.hazard_radius)
         return (closest < reach).any(axis=1)
 
@@ -449,11 +454,9 @@ class SlopeShield:
         g = np.asarray(goal_xy, dtype=np.float64)[:2] - np.asarray(start_xy, dtype=np.float64)[:2]
         if len(offsets) == 0 or math.hypot(g[0], g[1]) > self.cfg.approach_radius:
             return None
-        sq = np.maximum((offsets * offsets).sum(axis=1), 1e-18)
-        t = np.clip(offsets @ g / sq, 0.0, 1.0)  # where along each drive it comes closest to the goal
-        closest = np.hypot(t * offsets[:, 0] - g[0], t * offsets[:, 1] - g[1])
+        closest = closest_approach(offsets, g[None])[:, 0]
         passing = np.flatnonzero(closest <= max(self.cfg.approach_tolerance, float(closest.min())))
-        length = np.round(np.sqrt(sq[passing]), 6)  # to the micrometre: turned candidates of one ring tie
+        length = np.round(np.hypot(offsets[passing, 0], offsets[passing, 1]), 6)  # micrometres: one ring ties
         j = int(passing[np.lexsort((closest[passing], length))[0]])  # the shortest; then the nearest
         return j if self.allows(start_xy, offsets[j]) else None
 
