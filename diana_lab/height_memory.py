@@ -118,13 +118,19 @@ class HeightMemory:
         use = (kx == jx) & (ky == jy) & np.isfinite(bilinear) & known if n > 1 else np.zeros(x.shape, dtype=bool)
         return np.where(use, bilinear, own), known
 
-    def peaks_at(self, x: np.ndarray, y: np.ndarray, min_known: int = 7) -> np.ndarray:
-        """How far the cell under each world point stands above the median of its 8 neighbours (m; same shape).
+    def peaks_at(self, x: np.ndarray, y: np.ndarray, min_known: int = 7, rank: int = 0) -> np.ndarray:
+        """How far the cell under each world point stands above its 8 neighbours (m; same shape): above their
+        median (``rank`` 0) or above the ``rank``-th highest of them (1..8), counting only the known ones.
 
         Raw cells, not :meth:`heights_at`'s bilinear heights, which smear a rock one or two cells wide over the
         ground around it. 0 where the point's cell is unknown, on the map's edge, or has fewer than
         ``min_known`` known neighbours: a cell beside unseen ground (a shadow) has no ground to be judged
-        against. A slope or a ridge has neighbours on both sides of the cell's height; a rock does not."""
+        against. A slope has neighbours on both sides of the cell's height; a ridge has two along it at its own
+        height (so ``rank`` 2 never flags one, while the median may); a rock has none."""
+        if not (1 <= int(min_known) <= 8 and 0 <= int(rank) <= 8):
+            raise ValueError(
+                f"HeightMemory.peaks_at: expected min_known in 1..8 and rank in 0..8, got {min_known}, {rank}"
+            )
         x, y = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
         if self.origin is None or self.n < 3:
             return np.zeros(x.shape)
@@ -137,11 +143,14 @@ class HeightMemory:
         ring = np.sort(self.height.take(around).astype(np.float64), axis=0)  # NaN (unknown) sorts last
         known = np.isfinite(ring).sum(axis=0)
         cols = np.arange(ring.shape[1])
-        lo, hi = ring[(known - 1) // 2, cols], ring[known // 2, cols]  # the median of the known (garbage if none)
+        if rank == 0:  # the median of the known (garbage where none is: not judged below)
+            reference = 0.5 * (ring[np.maximum(known - 1, 0) // 2, cols] + ring[known // 2, cols])
+        else:  # the rank-th highest known (ascending order, NaN last); fewer known than rank: not judged below
+            reference = ring[np.maximum(known - rank, 0), cols]
         own = self.height.take(cell).astype(np.float64)
         with np.errstate(invalid="ignore"):
-            peak = own - 0.5 * (lo + hi)
-        judged = inner.ravel() & np.isfinite(own) & (known >= max(int(min_known), 1))
+            peak = own - reference
+        judged = inner.ravel() & np.isfinite(own) & (known >= max(int(min_known), int(rank), 1))
         return np.where(judged, peak, 0.0).reshape(x.shape)
 
     @staticmethod

@@ -40,9 +40,16 @@ class ShieldConfig:
     # m: among the allowed candidates, drive the first that ends at least this far from every place the rover
     # stood at an earlier decision of the episode (the first allowed if none does): no loops back; 0: off
     revisit_radius: float = 0.0
-    # m: also veto a drive where a cell of the map within the rover's footprint stands more than this above the
-    # median of its 8 neighbours (a rock, which the obstacle check misses when a wheel probe lies on it); 0: off
+    # m: also veto a drive where a cell of the map within the rover's footprint stands more than this above its
+    # 8 neighbours (``peak_rank``: a rock, which the obstacle check misses when a wheel probe lies on it); 0: off
     peak_height: float = 0.0
+    # what the peak check compares a cell with: 0 the median of its known neighbours; k >= 1 the k-th highest of
+    # them (2: a ridge, with two neighbours along it at its own height, never stands out; a rock one or two
+    # cells wide does)
+    peak_rank: int = 0
+    # the peak check judges a cell only with at least this many of its 8 neighbours known (1..8): next to
+    # unseen ground there may be no ground to judge it against
+    peak_min_known: int = 7
     # m: with the goal this near, first the shortest of the top_k candidates whose straight drive passes within
     # ``approach_tolerance`` of it (none does: the one passing nearest), if the checks allow it; 0: off
     approach_radius: float = 0.0
@@ -54,6 +61,9 @@ class ShieldConfig:
         non_negative("eval.shield.min_range", self.min_range)
         non_negative("eval.shield.revisit_radius", self.revisit_radius)
         non_negative("eval.shield.peak_height", self.peak_height)
+        for key, value, lo in (("peak_rank", self.peak_rank, 0), ("peak_min_known", self.peak_min_known, 1)):
+            if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= 8:
+                raise ConfigError(f"eval.shield.{key}: expected an integer in {lo}..8, got {value!r}")
         non_negative("eval.shield.hazard_radius", self.hazard_radius)
         non_negative("eval.shield.obstacle_height", self.obstacle_height)
         positive("eval.shield.cell_size", self.cell_size)

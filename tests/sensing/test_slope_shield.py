@@ -212,6 +212,17 @@ def test_a_sidecar_written_before_the_final_approach_reads_it_as_off():
     assert ShieldSettings.from_dict(node).approach_radius == 5.0
 
 
+def test_a_sidecar_written_before_the_peak_reference_reads_it_as_the_median_of_seven_known():
+    from dataclasses import asdict
+
+    node = asdict(ShieldSettings.from_config(ShieldConfig(peak_height=0.08, peak_rank=2, peak_min_known=4), ROBOT))
+    assert (node["peak_rank"], node["peak_min_known"]) == (2, 4)
+    older = ShieldSettings.from_dict({k: v for k, v in node.items() if k not in ("peak_rank", "peak_min_known")})
+    assert (older.peak_rank, older.peak_min_known, older.peak_height) == (0, 7, 0.08)
+    with pytest.raises(ValueError, match=r"peak_rank in 0\.\.8 and peak_min_known in 1\.\.8"):
+        SlopeShield(ShieldSettings.from_dict({**node, "peak_min_known": 0}))
+
+
 def test_a_hazard_felt_vetoes_the_drives_that_pass_near_it_until_reset():
     """Where the wheels met ground they could not drive (the tilt guard, a slope) is kept off, though the map
     shows flat ground there (what the rover tips on is often narrower than the map's cells)."""
@@ -249,14 +260,16 @@ def test_a_rock_beside_the_tracks_is_an_obstacle_the_tilt_check_alone_lets_throu
     assert s.obstacle_m(np.array([5.0, 5.0]), through) == 0.0  # nothing known of that way: passes
 
 
-def test_a_rock_under_the_axle_probes_is_a_peak_the_obstacle_check_misses():
+@pytest.mark.parametrize("rank", [0, 2])
+def test_a_rock_under_the_axle_probes_is_a_peak_the_obstacle_check_misses(rank):
     """A 0.25 m rock one 0.2 m cell wide on the drive's centre line: the axle probes, the obstacle check's
     reference, read the rock's own (bilinearly smeared) height, so the rise it measures stays under 0.12 m (the
     craters collisions the obstacle check let through, README "What is left"); the rock's cell stands over its
-    neighbours' median by its whole height, and the peak check vetoes the drive."""
+    neighbours' median, and over the second highest of them, by its whole height: the peak check vetoes the
+    drive with either reference."""
     rock = lambda x, y: np.where((y > 0.0) & (y < 0.2) & (x > 1.2) & (x < 1.4), 0.25, 0.0)  # noqa: E731
     start, through, away = np.zeros(2), np.array([3.0, 0.0]), np.array([0.0, -3.0])
-    s = seen(rock, obstacle_height=0.12, peak_height=0.10)
+    s = seen(rock, obstacle_height=0.12, peak_height=0.10, peak_rank=rank)
     assert s.obstacle_m(start, through) <= 0.12 and s.peak_m(start, through) == pytest.approx(0.25, abs=1e-6)
     assert not s.allows(start, through)
     assert s.peak_m(start, away) == 0.0 and s.allows(start, away)
@@ -279,6 +292,33 @@ def test_slopes_ridges_and_steps_are_not_peaks(name, fn):
     assert s.peak_m(np.zeros(2), np.array([3.0, 0.0])) <= 0.07, name
 
 
+def test_a_sharp_crest_stands_over_its_median_but_not_over_its_second_highest_neighbour():
+    """A 60 deg crest (a crater rim's knife edge): each map cell keeps its highest return, so the cells either
+    side of the crest's stand 0.17 m lower, six of its eight neighbours: the median flags the crest as a 0.17 m
+    peak, while the two cells along it, as high as it, leave nothing over the second highest (``peak_rank`` 2;
+    the crest is driven across, where rocks are vetoed either way)."""
+    crest = lambda x, y: 0.5 - math.tan(math.radians(60.0)) * np.abs(x - 1.5)  # noqa: E731  # crest mid-cell
+    start, across = np.zeros(2), np.array([3.0, 0.0])
+    median = seen(crest, peak_height=0.10, limit_deg=80.0)  # the tilt check aside: its 60 deg flanks
+    assert median.peak_m(start, across) == pytest.approx(0.1 * math.tan(math.radians(60.0)), abs=0.01)
+    assert not median.allows(start, across)
+    second = seen(crest, peak_height=0.10, limit_deg=80.0, peak_rank=2)
+    assert second.peak_m(start, across) == pytest.approx(0.0, abs=1e-6) and second.allows(start, across)
+
+
+@pytest.mark.parametrize(("rank", "flagged"), [(1, False), (2, True), (3, True)])
+def test_a_rock_two_cells_wide_is_a_peak_over_all_but_its_own_other_cell(rank, flagged):
+    """A 0.3 m rock over two 0.2 m cells: each cell has the other among its neighbours, as high as itself, so it
+    stands over the second highest neighbour (and the third) by the rock's height, not over the highest."""
+    from diana_lab.height_memory import HeightMemory
+
+    m = HeightMemory(0.2, 4.0, 1, 1, 0.0, 0.0)
+    rock = lambda x, y: np.where((x > 0.0) & (x < 0.4) & (y > 0.0) & (y < 0.2), 0.3, 0.0)  # noqa: E731
+    m.update(ground(rock, half=1.0), np.zeros(2))
+    got = m.peaks_at(np.array([0.1, 0.3]), np.array([0.1, 0.1]), rank=rank)
+    assert got.tolist() == pytest.approx([0.3, 0.3] if flagged else [0.0, 0.0], abs=1e-6)
+
+
 def test_a_peak_beside_unseen_ground_is_not_judged():
     """A cell needs 7 of its 8 neighbours known: a rock whose far side was never seen (its shadow) is not judged
     by it, nor is a map with nothing around the cell."""
@@ -290,6 +330,12 @@ def test_a_peak_beside_unseen_ground_is_not_judged():
     rock_x, rock_y = np.array([0.1]), np.array([0.1])
     assert m.peaks_at(rock_x, rock_y)[0] == 0.0  # 5 of 8 neighbours known
     assert m.peaks_at(rock_x, rock_y, min_known=5)[0] == pytest.approx(0.3, abs=1e-6)
+    assert m.peaks_at(rock_x, rock_y, min_known=5, rank=2)[0] == pytest.approx(0.3, abs=1e-6)
+    assert m.peaks_at(rock_x, rock_y, min_known=1, rank=6)[0] == 0.0  # only 5 known: no 6th highest to judge by
+    with pytest.raises(ValueError, match=r"min_known in 1\.\.8 and rank in 0\.\.8"):
+        m.peaks_at(rock_x, rock_y, min_known=0)
+    with pytest.raises(ValueError, match=r"min_known in 1\.\.8 and rank in 0\.\.8"):
+        m.peaks_at(rock_x, rock_y, rank=9)
     m.update(pts, np.zeros(2))
     # seen all round it is; the map's edge cell and a flat cell are not peaks
     got = m.peaks_at(np.array([0.1, 3.9, 0.5]), np.array([0.1, 3.9, 0.5]))
@@ -379,6 +425,12 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("peak_height", -0.1),
         ("approach_radius", -1.0),
         ("approach_tolerance", 0.0),
+        ("peak_rank", -1),
+        ("peak_rank", 9),
+        ("peak_rank", 1.5),
+        ("peak_min_known", 0),
+        ("peak_min_known", 9),
+        ("peak_min_known", True),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
