@@ -69,7 +69,11 @@ if TYPE_CHECKING:  # numpy only at run time: the onboard runtime imports this mo
     from diana_lab.config.evaluation import ShieldConfig
     from diana_lab.config.sim import RobotConfig
 
-__all__ = ["ShieldSettings", "SlopeShield"]
+__all__ = ["VETO_CHECKS", "ShieldSettings", "SlopeShield"]
+
+# the checks a veto of the policy's own choice is put down to (:attr:`SlopeShield.vetoed_by`), in report order;
+# ``place``: the place rule (allowed, but it ended where the rover had stood: ``revisits``)
+VETO_CHECKS = ("tilt", "hazard", "obstacle", "peak", "place")
 
 
 def closest_approach(offsets: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -181,6 +185,10 @@ class SlopeShield:
         self.revisits = 0  # of which the place rule alone turned from the first allowed candidate
         self.fallbacks = 0  # decisions that found no candidate allowed (the tilt check dropped, see _fallback)
         self.approaches = 0  # decisions the final approach made (the goal within approach_radius, its drive allowed)
+        # of the vetoes, how many each check made: every check the policy's own choice failed counts (one veto
+        # can fail several), so a check's count is the vetoes it alone would have made, and they can sum past
+        # ``vetoes``; a choice that failed none was driven
+        self.vetoed_by = dict.fromkeys(VETO_CHECKS, 0)
         self.hazards = np.zeros((0, 2))  # this episode's hazards felt (world xy)
         self._stood = np.zeros((0, 2))  # where the rover stood at this episode's decisions (world xy), each once
 
@@ -360,13 +368,21 @@ class SlopeShield:
         """Whether the drive is not vetoed (:meth:`steepest_deg` at most ``limit_deg``, not near a hazard felt,
         and no obstacle in the footprint above ``obstacle_height`` nor peak above ``peak_height``): one map
         lookup for all the map checks."""
+        return not self.failed_checks(start_xy, offset)
+
+    def failed_checks(self, start_xy: np.ndarray, offset: np.ndarray) -> tuple[str, ...]:
+        """The map checks the drive fails, of ``tilt``, ``hazard``, ``obstacle`` and ``peak`` (:data:`VETO_CHECKS`'
+        order; empty: :meth:`allows` it), from the same single map lookup."""
         start = np.asarray(start_xy, dtype=np.float64)[:2]
         tilt, rise, peak = self._probe_one(start, np.asarray(offset, dtype=np.float64), self._footprint_checks)
-        return (
-            float(np.degrees(np.arctan(tilt))) <= self.cfg.limit_deg
-            and not self.near_hazard(start, offset)[0]
-            and not self._blocked(rise, peak)
+        cfg = self.cfg
+        failed = (
+            ("tilt", float(np.degrees(np.arctan(tilt))) > cfg.limit_deg),
+            ("hazard", bool(self.near_hazard(start, offset)[0])),
+            ("obstacle", cfg.obstacle_height > 0 and rise > cfg.obstacle_height),
+            ("peak", cfg.peak_height > 0 and peak > cfg.peak_height),
         )
+        return tuple(name for name, fails in failed if fails)
 
     def _blocked(self, rise: float, peak: float) -> bool:
         cfg = self.cfg
@@ -417,7 +433,8 @@ class SlopeShield:
                 self.approaches += 1
                 return int(top[j])
         # the policy's own choice first (it passes ~6 times in 7 on the Mars yard), then the rest in one lookup
-        first_allowed = self.allows(start, offsets[top[0]])
+        first_failed = self.failed_checks(start, offsets[top[0]])
+        first_allowed = not first_failed
         if first_allowed and fresh[0]:
             return int(top[0])
         rest = offsets[top[1:]]
@@ -444,6 +461,8 @@ class SlopeShield:
         if pick == 0:
             return int(top[0])
         self.vetoes += 1
+        for name in first_failed or ("place",):  # allowed, so the place rule turned from it
+            self.vetoed_by[name] += 1
         return int(top[pick])
 
     def approach(self, offsets: np.ndarray, start_xy: np.ndarray, goal_xy: Sequence[float]) -> int | None:

@@ -131,7 +131,7 @@ class ShieldedPolicy:
             )
         self.policy, self.cfg = policy, cfg
         self.shield: Any = None  # built on the first reset, from the env's robot
-        self._vetoes_before = self._revisits_before = self._fallbacks_before = self._approaches_before = 0
+        self._before: dict[str, int] = {}  # the shield's counters at the episode's start
 
     @property
     def name(self) -> str:
@@ -153,8 +153,21 @@ class ShieldedPolicy:
         if self.shield is None:
             self.shield = SlopeShield(ShieldSettings.from_config(self.cfg, env.unwrapped.robot))
         self.shield.reset()
-        self._vetoes_before, self._revisits_before = self.shield.vetoes, self.shield.revisits
-        self._fallbacks_before, self._approaches_before = self.shield.fallbacks, self.shield.approaches
+        self._before = self._counters()
+
+    def _counters(self) -> dict[str, int]:
+        """The shield's running counters (over the suite) under their column names."""
+        from diana_lab.slope_shield import VETO_CHECKS
+
+        shield = self.shield
+        counts = {
+            "shield_vetoes": shield.vetoes,
+            "shield_revisits": shield.revisits,
+            "shield_fallbacks": shield.fallbacks,
+            "shield_approaches": shield.approaches,
+        }
+        counts.update({f"shield_{check}_vetoes": shield.vetoed_by[check] for check in VETO_CHECKS})
+        return counts
 
     def episode_stats(self) -> dict[str, int]:
         """The evaluation's extra columns for the episode just run: ``shield_vetoes``, the decisions the shield
@@ -162,13 +175,10 @@ class ShieldedPolicy:
         (``eval.shield.revisit_radius``: the first allowed candidate ended where the rover had stood), and
         ``shield_fallbacks``, the decisions that found no candidate allowed (its tilt check then dropped), and
         ``shield_approaches``, those its final approach made (``eval.shield.approach_radius``: the goal in reach,
-        the straight drive for it allowed; not counted as vetoes)."""
-        return {
-            "shield_vetoes": self.shield.vetoes - self._vetoes_before,
-            "shield_revisits": self.shield.revisits - self._revisits_before,
-            "shield_fallbacks": self.shield.fallbacks - self._fallbacks_before,
-            "shield_approaches": self.shield.approaches - self._approaches_before,
-        }
+        the straight drive for it allowed; not counted as vetoes); and per check, ``shield_<check>_vetoes``, the
+        vetoes whose policy's choice failed that check (``tilt``, ``hazard``, ``obstacle``, ``peak``; ``place``:
+        it passed them all and the place rule turned from it), one veto counting under each check it failed."""
+        return {name: count - self._before[name] for name, count in self._counters().items()}
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
         if self.shield is None:

@@ -18,6 +18,7 @@ from diana_lab.config import compose, to_object
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.evaluate import env_config
 from diana_lab.evaluation.loading import PRETRAINED_DIR, check_observation_space, load_policy
+from diana_lab.slope_shield import VETO_CHECKS
 
 from .test_cli import evaluate_cli
 
@@ -221,10 +222,19 @@ def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_p
             approaches = loaded.policy.shield.approaches
             assert summary["shield_approach_rate"] == pytest.approx(approaches / sum_steps(rows))
             assert summary["success_rate"] > 0 and 0 < approaches <= loaded.policy.shield.decisions
+            # every veto put down to the checks its policy's choice failed (one can fail several)
+            by_check = {c: sum(int(r.split(",")[rows[0].split(",").index(f"shield_{c}_vetoes")]) for r in rows[1:])
+                        for c in VETO_CHECKS}  # fmt: skip
+            assert by_check == loaded.policy.shield.vetoed_by
+            assert all(n <= vetoes for n in by_check.values()) and sum(by_check.values()) >= vetoes
+            assert by_check["place"] <= revisits
+            for c in VETO_CHECKS:
+                assert summary[f"shield_{c}_veto_rate"] == pytest.approx(by_check[c] / sum_steps(rows))
         else:
             assert "shield_vetoes" not in rows[0] and "shield_veto_rate" not in summary
             assert "shield_revisit_rate" not in summary and "shield_fallback_rate" not in summary
             assert "shield_approach_rate" not in summary
+            assert not any(f"shield_{c}_veto_rate" in summary for c in VETO_CHECKS)
     assert rates[True] is not None and rates[False] is None
 
 

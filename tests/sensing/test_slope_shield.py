@@ -371,6 +371,43 @@ def test_one_lookup_for_both_checks_gives_the_verdicts_of_each_check_alone():
     assert np.mean(by_rise) > 0.05  # and some only for what rises above the wheels
 
 
+def test_each_veto_is_put_down_to_every_check_the_policys_choice_failed():
+    """``vetoed_by``: a steep ramp (tilt), a wide rock beside the tracks (obstacle), a one-cell rock under the axle
+    probes (peak), a hazard felt, a place stood on; a drive failing two checks counts under both, and a decision
+    that drives the policy's choice counts under none."""
+
+    def ground_fn(x, y):
+        ramp = np.where(x < -1.0, math.tan(math.radians(28.0)) * (-1.0 - x), 0.0)  # west of x = -1: 28 deg up
+        # east, beside the tracks: 2 x 3 cells, so no cell of it stands over its second-highest neighbour
+        beside = np.where((y > 0.2) & (y < 0.6) & (x > 1.0) & (x < 1.6), 0.3, 0.0)
+        under = np.where((x > 0.0) & (x < 0.2) & (y > 1.2) & (y < 1.4), 0.25, 0.0)  # north: one cell
+        return ramp + beside + under
+
+    s = seen(ground_fn, obstacle_height=0.12, peak_height=0.08, peak_rank=2, hazard_radius=0.5, revisit_radius=1.0)
+    start = np.zeros(2)
+    east, north, west, south = [3.0, 0.0], [0.0, 3.0], [-3.0, 0.0], [0.0, -3.0]
+    offsets = np.array([east, north, west, south])
+    assert s.failed_checks(start, offsets[0]) == ("obstacle",)
+    assert s.failed_checks(start, offsets[1]) == ("peak",)
+    assert s.failed_checks(start, offsets[2]) == ("tilt",)
+    assert s.failed_checks(start, offsets[3]) == ()
+    assert s.choose([3], offsets, start) == 3 and sum(s.vetoed_by.values()) == 0  # driven: no veto
+    for first, check in ((0, "obstacle"), (1, "peak"), (2, "tilt")):
+        assert s.choose([first, 3], offsets, np.zeros(2)) == 3
+        assert s.vetoed_by[check] == 1
+    assert s.vetoes == 3 and s.vetoed_by["hazard"] == s.vetoed_by["place"] == 0
+    s.mark_hazard(np.array([2.0, 0.3]))  # now east is near a hazard felt as well as obstructed
+    assert s.failed_checks(start, offsets[0]) == ("hazard", "obstacle")
+    assert s.choose([0, 3], offsets, start) == 3
+    assert (s.vetoed_by["hazard"], s.vetoed_by["obstacle"], s.vetoes) == (1, 2, 4)
+    # 3 m south the policy asks to go back north to the origin, where the rover stood: the place rule
+    back, aside = [0.0, 3.0], [3.0, 0.0]
+    assert s.failed_checks(np.array([0.0, -3.0]), np.array(back)) == ()
+    assert s.choose([0, 1], np.array([back, aside]), np.array([0.0, -3.0])) == 1
+    assert s.vetoed_by["place"] == 1 and s.vetoes == 5 and s.revisits == 1
+    assert sum(s.vetoed_by.values()) == 6  # one veto failed two checks
+
+
 def test_returns_near_the_sensor_are_left_out_of_the_map_with_min_range():
     """A dust return 0.6 m from the sensor, floating 0.3 m above the ground beside the rover, would read as a
     ledge under the next drive; with min_range 1 m it is not mapped (the ground farther out still is)."""
