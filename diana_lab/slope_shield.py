@@ -186,8 +186,7 @@ class SlopeShield:
         self.fallbacks = 0  # decisions that found no candidate allowed (the tilt check dropped, see _fallback)
         self.approaches = 0  # decisions the final approach made (the goal within approach_radius, its drive allowed)
         # of the vetoes, how many each check made: every check the policy's own choice failed counts (one veto
-        # can fail several), so a check's count is the vetoes it alone would have made, and they can sum past
-        # ``vetoes``; a choice that failed none was driven
+        # can fail several, so the counts can sum past ``vetoes``); a choice that failed none was driven
         self.vetoed_by = dict.fromkeys(VETO_CHECKS, 0)
         self.hazards = np.zeros((0, 2))  # this episode's hazards felt (world xy)
         self._stood = np.zeros((0, 2))  # where the rover stood at this episode's decisions (world xy), each once
