@@ -153,6 +153,36 @@ class HeightMemory:
         judged = inner.ravel() & np.isfinite(own) & (known >= max(int(min_known), int(rank), 1))
         return np.where(judged, peak, 0.0).reshape(x.shape)
 
+    def roughness_near(self, x: float, y: float, reach: int, min_cells: int = 20) -> float:
+        """How rough the mapped ground is around world ``(x, y)`` (m): the median, over the known cells within
+        ``reach`` cells of the point's cell (a square), of how far a cell lies from the mean of its 4 neighbours.
+
+        That residual is 0 on any plane, so slopes do not count; the median ignores the few cells a rock or two
+        covers, so a rock on smooth ground leaves the ground smooth. NaN where fewer than ``min_cells`` cells
+        have themselves and their 4 neighbours known (or the point lies off the map): nothing to judge by."""
+        if reach < 1 or min_cells < 1:
+            raise ValueError(
+                f"HeightMemory.roughness_near: expected reach >= 1 and min_cells >= 1, got {reach}, {min_cells}"
+            )
+        if self.origin is None:
+            return math.nan
+        n = self.n
+        ix = math.floor((x - self.origin[0]) / self.cell_size)
+        iy = math.floor((y - self.origin[1]) / self.cell_size)
+        if not (0 <= ix < n and 0 <= iy < n):
+            return math.nan
+        grid = self.height.reshape(n, n)
+        win = grid[max(iy - reach - 1, 0) : iy + reach + 2, max(ix - reach - 1, 0) : ix + reach + 2]
+        if win.shape[0] < 3 or win.shape[1] < 3:
+            return math.nan
+        win = win.astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            residual = np.abs(
+                win[1:-1, 1:-1] - 0.25 * (win[:-2, 1:-1] + win[2:, 1:-1] + win[1:-1, :-2] + win[1:-1, 2:])
+            )
+        known = residual[np.isfinite(residual)]  # NaN wherever the cell or a neighbour is unknown
+        return float(np.median(known)) if len(known) >= min_cells else math.nan
+
     @staticmethod
     def to_world(levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
         """Points in the heading-aligned, gravity-up frame at the rover base -> the world frame (same dtype)."""

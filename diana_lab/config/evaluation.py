@@ -54,8 +54,23 @@ class ShieldConfig:
     # ``approach_tolerance`` of it (none does: the one passing nearest), if the checks allow it; 0: off
     approach_radius: float = 0.0
     approach_tolerance: float = 0.3  # m; under episode.goal_tolerance, so that the drive's own error is allowed for
+    # m: where the ground the map shows within ``smooth_radius`` of the rover is smoother than this (the median
+    # departure of a cell from the mean of its 4 neighbours: 0 on any plane), veto a drive whose footprint rises
+    # more than ``smooth_obstacle_height`` above its wheels (instead of ``obstacle_height``): on smooth ground a
+    # low rock stands out, on rough ground the same rise is the ground's own relief; 0: off
+    smooth_roughness: float = 0.0
+    smooth_obstacle_height: float = 0.0  # m, below obstacle_height
+    smooth_radius: float = 3.0  # m
 
     def __post_init__(self) -> None:
+        non_negative("eval.shield.smooth_roughness", self.smooth_roughness)
+        non_negative("eval.shield.smooth_obstacle_height", self.smooth_obstacle_height)
+        positive("eval.shield.smooth_radius", self.smooth_radius)
+        if self.smooth_roughness > 0 and not 0 < self.smooth_obstacle_height < self.obstacle_height:
+            raise ConfigError(
+                "eval.shield.smooth_obstacle_height: with eval.shield.smooth_roughness > 0, expected a height above "
+                f"0 and below eval.shield.obstacle_height ({self.obstacle_height}), got {self.smooth_obstacle_height}"
+            )
         non_negative("eval.shield.approach_radius", self.approach_radius)
         positive("eval.shield.approach_tolerance", self.approach_tolerance)
         non_negative("eval.shield.min_range", self.min_range)

@@ -148,6 +148,8 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         "eval.shield.peak_height=0.02",  # and cells over their 2nd highest neighbour (84 vetoes, 90 without)
         "eval.shield.peak_rank=2",
         "eval.shield.peak_min_known=5",
+        "eval.shield.smooth_roughness=0.05",  # and, on ground that smooth, rises over 0.03 m
+        "eval.shield.smooth_obstacle_height=0.03",
     ]
     run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
     try:
@@ -164,6 +166,8 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
     assert nav.spec.shield["obstacle_height"] == 0.05
     peak = nav.spec.shield
     assert (peak["peak_height"], peak["peak_rank"], peak["peak_min_known"]) == (0.02, 2, 5)
+    assert (peak["smooth_roughness"], peak["smooth_obstacle_height"], peak["smooth_radius"]) == (0.05, 0.03, 3.0)
+    assert nav.shield.vetoed_by == policy.shield.vetoed_by and nav.shield.vetoed_by["smooth"] > 0
     assert sum(h is not None for h in rec.hazards) > 0  # the guard tripped, and the runtime was told
     assert nav.shield.vetoes == policy.shield.vetoes > 10  # the shield changed course, the same times in both
     assert nav.shield.approaches == policy.shield.approaches > 0  # and made the final approach, the same times

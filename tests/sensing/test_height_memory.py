@@ -84,3 +84,38 @@ def test_bad_memory_settings_name_the_key():
         ElevationMapConfig(memory=True, memory_radius=0.0)
     with pytest.raises(ConfigError, match=r"sensor\.elevation_map\.memory"):
         ElevationMapConfig(memory="yes")
+
+
+def _mapped(fn, half: float = 5.0, cell: float = 0.2) -> HeightMemory:
+    """A memory with 0.2 m cells that has seen ``z = fn(x, y)`` at every cell centre within ``half`` m."""
+    m = HeightMemory(cell, 10.0, 1, 1, 0.0, 0.0)
+    m.update(np.zeros((0, 3)), centre=np.zeros(2))  # centres the map on the origin
+    g = np.arange(-half, half, cell) + cell / 2
+    x, y = np.meshgrid(g, g)
+    m.update(np.column_stack([x.ravel(), y.ravel(), fn(x, y).ravel()]), centre=np.zeros(2))
+    return m
+
+
+def test_roughness_is_nil_on_any_plane_and_a_rock_does_not_make_smooth_ground_rough():
+    tilted = _mapped(lambda x, y: 0.4 * x - 0.2 * y)  # a 24 deg slope
+    assert tilted.roughness_near(0.0, 0.0, 15) < 1e-5  # float32 heights: rounding only
+    rock = _mapped(lambda x, y: np.where((np.abs(x - 1.0) < 0.2) & (np.abs(y) < 0.2), 0.3, 0.0))
+    assert rock.roughness_near(0.0, 0.0, 15) < 1e-5  # 4 of ~900 cells: the median ignores it
+    rng = np.random.default_rng(0)
+    bumps = rng.normal(0.0, 0.02, (50, 50))  # 2 cm relief, a cell apart
+    rough = _mapped(lambda x, y: bumps[((y + 5.0) / 0.2).astype(int), ((x + 5.0) / 0.2).astype(int)])
+    assert 0.01 < rough.roughness_near(0.0, 0.0, 15) < 0.03
+    assert rough.roughness_near(0.0, 0.0, 3) != rough.roughness_near(0.0, 0.0, 15)  # its own window
+
+
+def test_roughness_needs_enough_known_ground_around_the_point():
+    m = HeightMemory(0.2, 10.0, 1, 1, 0.0, 0.0)
+    assert math.isnan(m.roughness_near(0.0, 0.0, 15))  # nothing mapped yet
+    m.update(np.array([[0.1, 0.1, 0.0], [0.3, 0.1, 0.0], [0.1, 0.3, 0.0]]), centre=np.zeros(2))
+    assert math.isnan(m.roughness_near(0.0, 0.0, 15))  # no cell has its 4 neighbours known
+    plane = _mapped(lambda x, y: 0.0 * x, half=1.0)  # 10 x 10 cells: 64 with all 4 neighbours
+    assert plane.roughness_near(0.0, 0.0, 15) == 0.0
+    assert math.isnan(plane.roughness_near(0.0, 0.0, 15, min_cells=65))
+    assert math.isnan(plane.roughness_near(30.0, 0.0, 15))  # off the map
+    with pytest.raises(ValueError, match="reach >= 1"):
+        plane.roughness_near(0.0, 0.0, 0)

@@ -440,6 +440,62 @@ def test_far_points_are_the_rows_far_enough_whatever_frame_they_are_in():
     assert s.far_points(same, far, sensor) is same
 
 
+SMOOTH = {"obstacle_height": 0.12, "smooth_roughness": 0.004, "smooth_obstacle_height": 0.06}
+LOW_ROCK = 0.19  # smeared over the 0.2 m cells: it rises 0.06-0.12 m above the wheels
+
+
+def _low_rock(x, y):
+    return np.where((y > 0.2) & (y < 0.4) & (x > 1.0) & (x < 1.4), LOW_ROCK, 0.0)  # beside the left track
+
+
+def _bumps(x, y):
+    """1-2 cm relief, a cell apart (about 11 mm of roughness): drivable, but no longer smooth."""
+    ix, iy = np.floor(x / 0.2).astype(int), np.floor(y / 0.2).astype(int)
+    return 0.01 * np.where((ix + iy) % 2 == 0, 1.0, -1.0) * np.where(ix % 3 == 0, 1.0, 0.5)
+
+
+def test_on_smooth_ground_a_low_rock_is_vetoed_as_smooth_and_on_rough_ground_let_through():
+    """A rise between the two limits is a rock only where the ground round it is smooth; on ground whose own
+    relief is rough the same rise is let through, as it is with the rule off."""
+    start, through, away = np.zeros(2), np.array([3.0, 0.0]), np.array([0.0, -3.0])
+    off = seen(_low_rock, obstacle_height=0.12)
+    assert 0.06 < off.obstacle_m(start, through) < 0.12 and off.allows(start, through)
+    s = seen(_low_rock, **SMOOTH)
+    assert s.smooth_ground(start) and s.memory.roughness_near(0.0, 0.0, 15) < 1e-5
+    assert s.failed_checks(start, through) == ("smooth",) and s.failed_checks(start, away) == ()
+    assert s.choose([0, 1], np.array([through, away]), start) == 1
+    assert s.vetoes == 1 and s.vetoed_by["smooth"] == 1 and s.vetoed_by["obstacle"] == 0
+    rough = seen(lambda x, y: _low_rock(x, y) + _bumps(x, y), **SMOOTH)
+    assert rough.memory.roughness_near(0.0, 0.0, 15) > 0.004 and not rough.smooth_ground(start)
+    assert 0.06 < rough.obstacle_m(start, through) < 0.12
+    assert rough.failed_checks(start, through) == ()
+    tall = seen(lambda x, y: 0.3 * (_low_rock(x, y) > 0) + _bumps(x, y), **SMOOTH)
+    assert tall.failed_checks(start, through) == ("obstacle",)  # over obstacle_height: rough ground or not
+
+
+def test_the_smooth_ground_verdict_follows_the_map_and_the_place():
+    s = seen(_low_rock, **SMOOTH)
+    assert s.smooth_ground(np.zeros(2))
+    s.observe(ground(_bumps), np.zeros(2))  # the same place seen again, now rough
+    assert not s.smooth_ground(np.zeros(2))
+    assert not s.smooth_ground(np.array([40.0, 0.0]))  # nothing known there: not smooth
+    s.reset()
+    assert not s.smooth_ground(np.zeros(2))
+    assert not seen(_low_rock, obstacle_height=0.12).smooth_ground(np.zeros(2))  # the rule off
+
+
+def test_a_sidecar_written_before_the_smooth_ground_limit_reads_it_as_off():
+    from dataclasses import asdict
+
+    node = asdict(ShieldSettings.from_config(ShieldConfig(enabled=True, **SMOOTH), ROBOT))
+    older = {k: v for k, v in node.items() if not k.startswith("smooth_")}
+    s = SlopeShield(ShieldSettings.from_dict(older))
+    s.observe(ground(_low_rock), np.zeros(2))
+    assert s.cfg.smooth_roughness == 0.0 and s.allows(np.zeros(2), np.array([3.0, 0.0]))
+    with pytest.raises(ValueError, match="0 < smooth_obstacle_height < obstacle_height"):
+        SlopeShield(ShieldSettings.from_dict({**node, "smooth_obstacle_height": 0.12}))
+
+
 def test_without_a_hazard_radius_hazards_are_not_kept():
     s = seen(lambda x, y: 0.0 * x)  # hazard_radius 0 (the default)
     s.mark_hazard(np.array([2.0, 0.0]))
@@ -468,8 +524,17 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("peak_min_known", 0),
         ("peak_min_known", 9),
         ("peak_min_known", True),
+        ("smooth_roughness", -0.001),
+        ("smooth_obstacle_height", -0.05),
+        ("smooth_radius", 0.0),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
     with pytest.raises(ConfigError, match=f"eval.shield.{key}"):
         ShieldConfig(**{key: value})
+
+
+@pytest.mark.parametrize("low", [0.0, 0.12, 0.2])
+def test_a_smooth_ground_limit_must_lie_under_the_obstacle_height(low):
+    with pytest.raises(ConfigError, match=r"eval.shield.smooth_obstacle_height: .*below eval.shield.obstacle_height"):
+        ShieldConfig(obstacle_height=0.12, smooth_roughness=0.004, smooth_obstacle_height=low)
