@@ -83,7 +83,7 @@ def test_the_card_holds_every_suite_with_every_rate():
 @pytest.mark.slow
 def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
     """Deterministic policy, fixed suite: the figures come back (within one episode, for other CPUs' float
-    rounding), and they clear the issue's bar for this suite, 90 % success (v0.11 to v0.8: 20 of 20; v0.7 and v0.6: 19;
+    rounding), and they clear the issue's bar for this suite, 90 % success (v0.12 to v0.8: 20 of 20; v0.7 and v0.6: 19;
     v0.5: 18)."""
     want = card()["results"]["mars_yard_20"]
     out = tmp_path / "summary.json"
