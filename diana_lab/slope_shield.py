@@ -4,7 +4,7 @@ Why it exists: the reference policy (a CNN choosing one of 96 candidate waypoint
 picks near-tied candidates, and some of them run into ground it could have seen was too steep. A check of the
 chosen drive on a finer map of the same returns, before it is driven, is what a rover's onboard safety layer
 would do ("shielding" a learnt policy). Measured with the v0.3 weights on 100-episode suites (the numbers in
-the README): +11 to +13 points of success on the Mars yard (two suite seeds) and in physics, +2 on unseen
+docs/reference_policy.md): +11 to +13 points of success on the Mars yard (two suite seeds) and in physics, +2 on unseen
 craters; the gain comes mostly from fewer stuck episodes, since the map rarely shows what the rover tips on.
 
 The rule (numpy only, so an onboard runtime can share it): along the straight segment from the rover to the
@@ -36,7 +36,7 @@ v0.10 probed it) the median of the 8 neighbours, which a sharp crest also stands
 yard fell to 0.92 with it); ``peak_rank`` 2 (the preset, v0.11) the second highest, which a crest, with two
 neighbours along it as high as itself, never does, while a rock one or two cells wide still does. On the yard's
 true ground mapped at 0.2 m, 0.19 % of the cells stand more than 0.08 m over their neighbours' median and none
-over their second highest (README, "Peak check").
+over their second highest (docs/reference_policy.md, "Peak check").
 
 Smooth ground (``smooth_roughness`` > 0): where the ground the map shows within ``smooth_radius`` of the rover is
 smoother than ``smooth_roughness`` (:meth:`HeightMemory.roughness_near`: the median departure of a cell from the
@@ -46,7 +46,7 @@ only the ground round it tells which: one threshold that catches the craters' lo
 yard's drivable relief on 28 % of the policy's candidates. The roughness is worked out only for a drive whose rise
 lies between the two limits, once per decision. In the preset (4 mm, 0.06 m, 3 m), on the validation suites,
 the craters world's decisions read a median 2.2 mm (90 % under 5 mm), the yard's 6.6 mm (5 % under 4.3 mm)
-(README, "Smooth ground").
+(docs/reference_policy.md, "Smooth ground").
 
 Places already stood on (``revisit_radius`` > 0): among the candidates the checks allow, the first whose end
 lies at least ``revisit_radius`` from every place the rover stood at an earlier decision of the episode is

@@ -1,6 +1,6 @@
 """A learnt cost map and a fixed shortest-path backup: the policy network of the reference recipe.
 
-Why (measured on the Mars yard; the README's reference-policy section has the figures): a policy that reads
+Why (measured on the Mars yard; docs/reference_policy.md has the figures): a policy that reads
 the map through a CNN, or through a value-iteration network whose Bellman backup is itself learnt (Tamar et
 al., 2016; :mod:`diana_lab.agents.planner`), imitates the A* expert poorly -- 50-60 % success against the
 expert's 95 % -- because both must learn *planning* from a few tens of thousands of labels. Planning is

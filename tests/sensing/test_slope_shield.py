@@ -264,9 +264,9 @@ def test_a_rock_beside_the_tracks_is_an_obstacle_the_tilt_check_alone_lets_throu
 def test_a_rock_under_the_axle_probes_is_a_peak_the_obstacle_check_misses(rank):
     """A 0.25 m rock one 0.2 m cell wide on the drive's centre line: the axle probes, the obstacle check's
     reference, read the rock's own (bilinearly smeared) height, so the rise it measures stays under 0.12 m (the
-    craters collisions the obstacle check let through, README "What is left"); the rock's cell stands over its
-    neighbours' median, and over the second highest of them, by its whole height: the peak check vetoes the
-    drive with either reference."""
+    craters collisions the obstacle check let through, docs/reference_policy.md, "What is left"); the rock's cell
+    stands over its neighbours' median, and over the second highest of them, by its whole height: the peak check
+    vetoes the drive with either reference."""
     rock = lambda x, y: np.where((y > 0.0) & (y < 0.2) & (x > 1.2) & (x < 1.4), 0.25, 0.0)  # noqa: E731
     start, through, away = np.zeros(2), np.array([3.0, 0.0]), np.array([0.0, -3.0])
     s = seen(rock, obstacle_height=0.12, peak_height=0.10, peak_rank=rank)
