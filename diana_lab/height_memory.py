@@ -153,16 +153,19 @@ class HeightMemory:
         judged = inner.ravel() & np.isfinite(own) & (known >= max(int(min_known), int(rank), 1))
         return np.where(judged, peak, 0.0).reshape(x.shape)
 
-    def roughness_near(self, x: float, y: float, reach: int, min_cells: int = 20) -> float:
-        """How rough the mapped ground is around world ``(x, y)`` (m): the median, over the known cells within
-        ``reach`` cells of the point's cell (a square), of how far a cell lies from the mean of its 4 neighbours.
+    def roughness_near(self, x: float, y: float, reach: int, min_blocks: int = 20) -> float:
+        """How rough the mapped ground is around world ``(x, y)`` (m), judged on blocks of 2 x 2 cells (their
+        known cells' mean height): the median, over the blocks within ``reach`` blocks of the point's cell (a
+        square), of how far a block lies from the mean of its 4 neighbours.
 
-        That residual is 0 on any plane, so slopes do not count; the median ignores the few cells a rock or two
-        covers, so a rock on smooth ground leaves the ground smooth. NaN where fewer than ``min_cells`` cells
-        have themselves and their 4 neighbours known (or the point lies off the map): nothing to judge by."""
-        if reach < 1 or min_cells < 1:
+        That residual is 0 on any plane, so slopes do not count; the median ignores the few blocks a rock covers,
+        so a rock on smooth ground leaves the ground smooth; and the blocks' means damp the range noise each cell's
+        highest return carries (on the validation worlds with ``sensor.noise=realistic``, single cells read the
+        craters' median 2.2 -> 4.8 mm and blocks 2.8 -> 3.6 mm, the yard's staying above 5 mm either way). NaN
+        where fewer than ``min_blocks`` blocks have themselves and their 4 neighbours known, or off the map."""
+        if reach < 1 or min_blocks < 1:
             raise ValueError(
-                f"HeightMemory.roughness_near: expected reach >= 1 and min_cells >= 1, got {reach}, {min_cells}"
+                f"HeightMemory.roughness_near: expected reach >= 1 and min_blocks >= 1, got {reach}, {min_blocks}"
             )
         if self.origin is None:
             return math.nan
@@ -171,17 +174,20 @@ class HeightMemory:
         iy = math.floor((y - self.origin[1]) / self.cell_size)
         if not (0 <= ix < n and 0 <= iy < n):
             return math.nan
-        grid = self.height.reshape(n, n)
-        win = grid[max(iy - reach - 1, 0) : iy + reach + 2, max(ix - reach - 1, 0) : ix + reach + 2]
-        if win.shape[0] < 3 or win.shape[1] < 3:
+        span = 2 * reach + 2  # cells either side: the reach in blocks, and a block of neighbours beyond it
+        win = self.height.reshape(n, n)[max(iy - span, 0) : iy + span, max(ix - span, 0) : ix + span]
+        rows, cols = win.shape[0] // 2, win.shape[1] // 2
+        if rows < 3 or cols < 3:
             return math.nan
-        win = win.astype(np.float64)
+        cells = win[: 2 * rows, : 2 * cols].astype(np.float64).reshape(rows, 2, cols, 2)
+        known = np.isfinite(cells)
         with np.errstate(invalid="ignore"):
+            block = np.where(known, cells, 0.0).sum(axis=(1, 3)) / known.sum(axis=(1, 3))  # NaN: none known
             residual = np.abs(
-                win[1:-1, 1:-1] - 0.25 * (win[:-2, 1:-1] + win[2:, 1:-1] + win[1:-1, :-2] + win[1:-1, 2:])
+                block[1:-1, 1:-1] - 0.25 * (block[:-2, 1:-1] + block[2:, 1:-1] + block[1:-1, :-2] + block[1:-1, 2:])
             )
-        known = residual[np.isfinite(residual)]  # NaN wherever the cell or a neighbour is unknown
-        return float(np.median(known)) if len(known) >= min_cells else math.nan
+        judged = residual[np.isfinite(residual)]
+        return float(np.median(judged)) if len(judged) >= min_blocks else math.nan
 
     @staticmethod
     def to_world(levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:

@@ -39,14 +39,14 @@ true ground mapped at 0.2 m, 0.19 % of the cells stand more than 0.08 m over the
 over their second highest (docs/reference_policy.md, "Peak check").
 
 Smooth ground (``smooth_roughness`` > 0): where the ground the map shows within ``smooth_radius`` of the rover is
-smoother than ``smooth_roughness`` (:meth:`HeightMemory.roughness_near`: the median departure of a cell from the
-mean of its 4 neighbours, 0 on any plane), the obstacle check's limit drops from ``obstacle_height`` to
-``smooth_obstacle_height``; such a veto is put down to ``smooth``. A rise is a rock or the ground's own relief, and
-only the ground round it tells which: one threshold that catches the craters' low rocks (0.08 m) vetoed the Mars
-yard's drivable relief on 28 % of the policy's candidates. The roughness is worked out only for a drive whose rise
-lies between the two limits, once per decision. In the preset (4 mm, 0.06 m, 3 m), on the validation suites,
-the craters world's decisions read a median 2.2 mm (90 % under 5 mm), the yard's 6.6 mm (5 % under 4.3 mm)
-(docs/reference_policy.md, "Smooth ground").
+smoother than ``smooth_roughness`` (:meth:`HeightMemory.roughness_near`: the median departure of a block of 2 x 2
+cells from the mean of its 4 neighbouring blocks, 0 on any plane), the obstacle check's limit drops from
+``obstacle_height`` to ``smooth_obstacle_height``; such a veto is put down to ``smooth``. A rise is a rock or the
+ground's own relief, and only the ground round it tells which: one threshold that catches the craters' low rocks
+(0.08 m) vetoed the Mars yard's drivable relief on 28 % of the policy's candidates. The roughness is worked out
+only for a drive whose rise lies between the two limits, once per decision. In the preset (4.5 mm, 0.06 m, 3 m),
+on the validation suites, the craters world's decisions read a median 2.8 mm (3.6 mm with sensor noise), the
+yard's 9.3 mm (5 % under 4.8 mm) (docs/reference_policy.md, "Smooth ground").
 
 Places already stood on (``revisit_radius`` > 0): among the candidates the checks allow, the first whose end
 lies at least ``revisit_radius`` from every place the rover stood at an earlier decision of the episode is
@@ -198,7 +198,7 @@ class SlopeShield:
                 f"{settings.smooth_roughness}, {settings.smooth_radius}, {settings.smooth_obstacle_height}, "
                 f"{settings.obstacle_height}"
             )
-        self._smooth_reach = max(1, round(settings.smooth_radius / settings.cell_size))  # in map cells
+        self._smooth_reach = max(1, round(settings.smooth_radius / (2.0 * settings.cell_size)))  # in 2 x 2 blocks
         self._smooth_at: tuple[float, float, bool] | None = None  # (x, y, smooth) since the map last changed
         # the obstacle check's probes around each sample: the centre and rings at half and the whole footprint
         ring = np.linspace(0.0, 2.0 * np.pi, 8, endpoint=False)

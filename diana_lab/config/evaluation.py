@@ -55,9 +55,9 @@ class ShieldConfig:
     approach_radius: float = 0.0
     approach_tolerance: float = 0.3  # m; under episode.goal_tolerance, so that the drive's own error is allowed for
     # m: where the ground the map shows within ``smooth_radius`` of the rover is smoother than this (the median
-    # departure of a cell from the mean of its 4 neighbours: 0 on any plane), veto a drive whose footprint rises
-    # more than ``smooth_obstacle_height`` above its wheels (instead of ``obstacle_height``): on smooth ground a
-    # low rock stands out, on rough ground the same rise is the ground's own relief; 0: off
+    # departure of a 2 x 2-cell block from the mean of its 4 neighbours: 0 on any plane), veto a drive whose
+    # footprint rises more than ``smooth_obstacle_height`` above its wheels (instead of ``obstacle_height``): on
+    # smooth ground a low rock stands out, on rough ground the same rise is the ground's own relief; 0: off
     smooth_roughness: float = 0.0
     smooth_obstacle_height: float = 0.0  # m, below obstacle_height
     smooth_radius: float = 3.0  # m

@@ -98,24 +98,31 @@ def _mapped(fn, half: float = 5.0, cell: float = 0.2) -> HeightMemory:
 
 def test_roughness_is_nil_on_any_plane_and_a_rock_does_not_make_smooth_ground_rough():
     tilted = _mapped(lambda x, y: 0.4 * x - 0.2 * y)  # a 24 deg slope
-    assert tilted.roughness_near(0.0, 0.0, 15) < 1e-5  # float32 heights: rounding only
+    assert tilted.roughness_near(0.0, 0.0, 8) < 1e-5  # float32 heights: rounding only
     rock = _mapped(lambda x, y: np.where((np.abs(x - 1.0) < 0.2) & (np.abs(y) < 0.2), 0.3, 0.0))
-    assert rock.roughness_near(0.0, 0.0, 15) < 1e-5  # 4 of ~900 cells: the median ignores it
+    assert rock.roughness_near(0.0, 0.0, 8) < 1e-5  # 1-4 of ~300 blocks: the median ignores it
+
+
+def test_roughness_counts_relief_a_block_wide_and_damps_noise_a_cell_wide():
+    """Blocks of 2 x 2 cells: 2 cm of noise from cell to cell (range noise on a flat floor) mostly averages out,
+    4 cm waves 1.1-1.3 m long (relief) do not."""
     rng = np.random.default_rng(0)
-    bumps = rng.normal(0.0, 0.02, (50, 50))  # 2 cm relief, a cell apart
-    rough = _mapped(lambda x, y: bumps[((y + 5.0) / 0.2).astype(int), ((x + 5.0) / 0.2).astype(int)])
-    assert 0.01 < rough.roughness_near(0.0, 0.0, 15) < 0.03
-    assert rough.roughness_near(0.0, 0.0, 3) != rough.roughness_near(0.0, 0.0, 15)  # its own window
+    noise = rng.normal(0.0, 0.02, (50, 50))
+    cell = lambda x, y: (((x + 5.0) / 0.2).astype(int), ((y + 5.0) / 0.2).astype(int))  # noqa: E731
+    noisy = _mapped(lambda x, y: noise[cell(x, y)[1], cell(x, y)[0]])
+    blocky = _mapped(lambda x, y: 0.04 * np.sin(2 * np.pi * x / 1.1) * np.sin(2 * np.pi * y / 1.3))
+    assert noisy.roughness_near(0.0, 0.0, 8) < 0.01 < blocky.roughness_near(0.0, 0.0, 8)
+    assert noisy.roughness_near(0.0, 0.0, 2) != noisy.roughness_near(0.0, 0.0, 8)  # its own window
 
 
 def test_roughness_needs_enough_known_ground_around_the_point():
     m = HeightMemory(0.2, 10.0, 1, 1, 0.0, 0.0)
-    assert math.isnan(m.roughness_near(0.0, 0.0, 15))  # nothing mapped yet
+    assert math.isnan(m.roughness_near(0.0, 0.0, 8))  # nothing mapped yet
     m.update(np.array([[0.1, 0.1, 0.0], [0.3, 0.1, 0.0], [0.1, 0.3, 0.0]]), centre=np.zeros(2))
-    assert math.isnan(m.roughness_near(0.0, 0.0, 15))  # no cell has its 4 neighbours known
-    plane = _mapped(lambda x, y: 0.0 * x, half=1.0)  # 10 x 10 cells: 64 with all 4 neighbours
-    assert plane.roughness_near(0.0, 0.0, 15) == 0.0
-    assert math.isnan(plane.roughness_near(0.0, 0.0, 15, min_cells=65))
-    assert math.isnan(plane.roughness_near(30.0, 0.0, 15))  # off the map
+    assert math.isnan(m.roughness_near(0.0, 0.0, 8))  # one block known, none with its 4 neighbours
+    plane = _mapped(lambda x, y: 0.0 * x, half=2.0)  # 20 x 20 cells
+    assert plane.roughness_near(0.0, 0.0, 8) == 0.0
+    assert math.isnan(plane.roughness_near(0.0, 0.0, 8, min_blocks=200))
+    assert math.isnan(plane.roughness_near(30.0, 0.0, 8))  # off the map
     with pytest.raises(ValueError, match="reach >= 1"):
         plane.roughness_near(0.0, 0.0, 0)

@@ -440,7 +440,7 @@ def test_far_points_are_the_rows_far_enough_whatever_frame_they_are_in():
     assert s.far_points(same, far, sensor) is same
 
 
-SMOOTH = {"obstacle_height": 0.12, "smooth_roughness": 0.004, "smooth_obstacle_height": 0.06}
+SMOOTH = {"obstacle_height": 0.12, "smooth_roughness": 0.0045, "smooth_obstacle_height": 0.06}
 LOW_ROCK = 0.19  # smeared over the 0.2 m cells: it rises 0.06-0.12 m above the wheels
 
 
@@ -449,9 +449,16 @@ def _low_rock(x, y):
 
 
 def _bumps(x, y):
-    """1-2 cm relief, a cell apart (about 11 mm of roughness): drivable, but no longer smooth."""
+    """Relief of +-1 cm in 0.8 m tiles (1 cm of roughness on the shield's 2 x 2-cell blocks): drivable, but not
+    smooth."""
+    ix, iy = np.floor(x / 0.8).astype(int), np.floor(y / 0.8).astype(int)
+    return 0.01 * np.where((ix + iy) % 2 == 0, 1.0, -1.0)
+
+
+def _speckle(x, y):
+    """+-1 cm from one 0.2 m cell to the next, as range noise leaves it: the blocks' means cancel it."""
     ix, iy = np.floor(x / 0.2).astype(int), np.floor(y / 0.2).astype(int)
-    return 0.01 * np.where((ix + iy) % 2 == 0, 1.0, -1.0) * np.where(ix % 3 == 0, 1.0, 0.5)
+    return 0.01 * np.where((ix + iy) % 2 == 0, 1.0, -1.0)
 
 
 def test_on_smooth_ground_a_low_rock_is_vetoed_as_smooth_and_on_rough_ground_let_through():
@@ -461,14 +468,16 @@ def test_on_smooth_ground_a_low_rock_is_vetoed_as_smooth_and_on_rough_ground_let
     off = seen(_low_rock, obstacle_height=0.12)
     assert 0.06 < off.obstacle_m(start, through) < 0.12 and off.allows(start, through)
     s = seen(_low_rock, **SMOOTH)
-    assert s.smooth_ground(start) and s.memory.roughness_near(0.0, 0.0, 15) < 1e-5
+    assert s.smooth_ground(start) and s.memory.roughness_near(0.0, 0.0, 8) < 1e-5
     assert s.failed_checks(start, through) == ("smooth",) and s.failed_checks(start, away) == ()
     assert s.choose([0, 1], np.array([through, away]), start) == 1
     assert s.vetoes == 1 and s.vetoed_by["smooth"] == 1 and s.vetoed_by["obstacle"] == 0
     rough = seen(lambda x, y: _low_rock(x, y) + _bumps(x, y), **SMOOTH)
-    assert rough.memory.roughness_near(0.0, 0.0, 15) > 0.004 and not rough.smooth_ground(start)
+    assert rough.memory.roughness_near(0.0, 0.0, 8) > 0.0045 and not rough.smooth_ground(start)
     assert 0.06 < rough.obstacle_m(start, through) < 0.12
     assert rough.failed_checks(start, through) == ()
+    speckled = seen(lambda x, y: _low_rock(x, y) + _speckle(x, y), **SMOOTH)  # cell-scale noise: still smooth
+    assert speckled.smooth_ground(start) and speckled.failed_checks(start, through) == ("smooth",)
     tall = seen(lambda x, y: 0.3 * (_low_rock(x, y) > 0) + _bumps(x, y), **SMOOTH)
     assert tall.failed_checks(start, through) == ("obstacle",)  # over obstacle_height: rough ground or not
 
