@@ -61,6 +61,10 @@ The final approach (``approach_radius`` > 0, given the goal): with the goal that
 passing within ``approach_tolerance`` of it is tried before the policy's (:meth:`SlopeShield.approach`), the place
 rule aside. Validation suites, SPL: the yard ``eval.seed=777 / 778 / 779`` 0.800 / 0.738 / 0.792 -> 0.828 / 0.773
 / 0.821 at 5 m (success 0.91 / 0.88 / 0.91 -> 0.92 / 0.89 / 0.91).
+
+The detour (``detour_after`` > 0, given the goal): once the rover has gone that many decisions without gaining on
+the goal, the allowed candidate with the least length plus cost to go over this map is driven, after the final
+approach and before the policy's own choice (:mod:`diana_lab.detour`, which says why and how).
 """
 
 from __future__ import annotations
@@ -72,6 +76,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from diana_lab.detour import Detour
 from diana_lab.height_memory import HeightMemory
 from diana_lab.rotations import leveling_matrix
 
@@ -121,6 +126,9 @@ class ShieldSettings:
     smooth_roughness: float = 0.0  # m: ground this smooth lowers the obstacle limit; 0: off (older sidecars)
     smooth_obstacle_height: float = 0.0  # m: the obstacle limit on smooth ground
     smooth_radius: float = 3.0  # m: the ground around the rover that roughness is judged on
+    detour_after: int = 0  # decisions without progress before the detour drives; 0: off (older sidecars)
+    detour_progress: float = 0.5  # m nearer the goal than ever that count as progress
+    detour_margin: float = 10.0  # m around the rover and the goal that the detour's search covers
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -145,6 +153,9 @@ class ShieldSettings:
             float(cfg.smooth_roughness),
             float(cfg.smooth_obstacle_height),
             float(cfg.smooth_radius),
+            int(cfg.detour_after),
+            float(cfg.detour_progress),
+            float(cfg.detour_margin),
         )
 
     @classmethod
@@ -198,6 +209,23 @@ class SlopeShield:
                 f"{settings.smooth_roughness}, {settings.smooth_radius}, {settings.smooth_obstacle_height}, "
                 f"{settings.obstacle_height}"
             )
+        if not (settings.detour_after >= 0 and settings.detour_progress > 0 and settings.detour_margin > 0):
+            raise ValueError(
+                "SlopeShield: expected detour_after >= 0, a positive detour_progress and detour_margin, got "
+                f"{settings.detour_after}, {settings.detour_progress}, {settings.detour_margin}"
+            )
+        self.detour = (
+            Detour(
+                settings.detour_after,
+                settings.detour_progress,
+                settings.detour_margin,
+                settings.limit_deg,
+                settings.hazard_radius,
+                pool=max(1, round(2.0 * settings.half_track / settings.cell_size)),  # the track width in cells
+            )
+            if settings.detour_after > 0
+            else None
+        )
         self._smooth_reach = max(1, round(settings.smooth_radius / (2.0 * settings.cell_size)))  # in 2 x 2 blocks
         self._smooth_at: tuple[float, float, bool] | None = None  # (x, y, smooth) since the map last changed
         # the obstacle check's probes around each sample: the centre and rings at half and the whole footprint
@@ -215,6 +243,7 @@ class SlopeShield:
         self.revisits = 0  # of which the place rule alone turned from the first allowed candidate
         self.fallbacks = 0  # decisions that found no candidate allowed (the tilt check dropped, see _fallback)
         self.approaches = 0  # decisions the final approach made (the goal within approach_radius, its drive allowed)
+        self.detours = 0  # decisions the detour made (no progress for detour_after decisions; diana_lab.detour)
         # of the vetoes, how many each check made: every check the policy's own choice failed counts (one veto
         # can fail several, so the counts can sum past ``vetoes``); a choice that failed none was driven
         self.vetoed_by = dict.fromkeys(VETO_CHECKS, 0)
@@ -226,6 +255,8 @@ class SlopeShield:
         the suite)."""
         self.memory.reset()
         self._smooth_at = None
+        if self.detour is not None:
+            self.detour.reset()
         self.hazards = np.zeros((0, 2))
         self._stood = np.zeros((0, 2))
 
@@ -434,7 +465,9 @@ class SlopeShield:
             self._smooth_at = (x, y, bool(roughness < self.cfg.smooth_roughness))  # NaN: not smooth
         return self._smooth_at[2]
 
-    def _obstructed(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
+    def obstructed(self, start_xy: np.ndarray, offset: np.ndarray) -> bool:
+        """Whether the footprint checks (obstacle, smooth ground, peak) veto the drive: the dearer part of
+        :meth:`allows`, asked only of drives that pass the tilt and hazard checks."""
         if not self._footprint_checks:
             return False
         start = np.asarray(start_xy, dtype=np.float64)[:2]
@@ -462,7 +495,9 @@ class SlopeShield:
         """The first of ``ranked`` (candidate indices, the policy's choice first) among its first ``top_k``
         whose drive ``offsets[k]`` (world frame, ``(n, 2)``) is allowed and, with ``revisit_radius``, ends away
         from the places stood on (else the first allowed); if none is allowed, :meth:`_fallback`'s. With
-        ``approach_radius`` and the goal (world ``goal_xy``) that near, :meth:`approach`'s drive comes first."""
+        ``approach_radius`` and the goal (world ``goal_xy``) that near, :meth:`approach`'s drive comes first; with
+        ``detour_after`` and the goal, once the rover has stopped gaining on it, :class:`~diana_lab.detour.Detour`'s
+        drive comes next."""
         if len(ranked) == 0:
             raise ValueError("SlopeShield.choose: expected at least one ranked candidate, got none")
         self.decisions += 1
@@ -472,10 +507,17 @@ class SlopeShield:
         fresh = self.fresh(start, offsets[top])
         if self.cfg.revisit_radius > 0 and not (len(self._stood) and (self._stood[-1] == start).all()):
             self._stood = np.concatenate([self._stood, start[None]])  # a rover that has not moved adds nothing
-        if goal_xy is not None and self.cfg.approach_radius > 0:
-            j = self.approach(offsets[top], start, goal_xy)
+        goal = None if goal_xy is None else np.asarray(goal_xy, dtype=np.float64)[:2]
+        stalled = self.detour is not None and goal is not None and self.detour.stalled(start, goal)
+        if goal is not None and self.cfg.approach_radius > 0:
+            j = self.approach(offsets[top], start, goal)
             if j is not None:
                 self.approaches += 1
+                return int(top[j])
+        if stalled:
+            j = self.detour.choose(self, offsets[top], start, goal, fresh)
+            if j is not None:
+                self.detours += 1
                 return int(top[j])
         # the policy's own choice first (v0.11 drives it at about half the yard's decisions), then the rest at once
         first_failed = self.failed_checks(start, offsets[top[0]])
@@ -490,7 +532,7 @@ class SlopeShield:
         for j in np.flatnonzero(ok):
             if allowed_first is not None and not fresh[1 + j]:
                 continue  # only a fresh candidate can still change the choice
-            if self._obstructed(start, rest[j]):
+            if self.obstructed(start, rest[j]):
                 continue
             if fresh[1 + j]:
                 pick = 1 + j
@@ -538,7 +580,7 @@ class SlopeShield:
         drive, and the one that halted is the worst to repeat (see the module docstring)."""
         first = None
         for j in np.flatnonzero(~self.near_hazard(start, offsets)):
-            if self._obstructed(start, offsets[j]):
+            if self.obstructed(start, offsets[j]):
                 continue
             if fresh[j]:
                 return int(j)

@@ -26,10 +26,13 @@ import numpy as np
 
 from diana_lab.benchmarks.core import BenchContext, Figure, Target, figure_from_samples, measurement, repeat
 
-__all__ = ["policy_latency"]
+__all__ = ["detour_latency", "policy_latency"]
 
 KEYS = ("policy_latency_ms_p50", "policy_latency_ms_p99")
 TARGETS = {"policy_latency_ms_p50": Target("<=", 1.0), "policy_latency_ms_p99": Target("<=", 2.0)}
+DETOUR_KEYS = ("shield_detour_ms_p50", "shield_detour_ms_p99")
+DETOUR_GOAL_M = 20.0  # the goal this far from each pose (the suite's goals lie 8..30 m away)
+DETOUR_SEEN_M = 30.0  # half-width of the square of true ground the shield's map holds around each pose
 MISSING_NOTE = "not measured: the deployment runtime (diana_lab.deploy, onnxruntime) is not installed"
 
 
@@ -132,4 +135,77 @@ def policy_latency(ctx: BenchContext) -> list[Figure]:
             extra=split,
         )
         for key, stat in zip(KEYS, ("p50", "p99"))
+    ]
+
+
+@measurement(*DETOUR_KEYS)
+def detour_latency(ctx: BenchContext) -> list[Figure]:
+    """One decision of the slope shield's detour (:mod:`diana_lab.detour`: the search over its map and the checks
+    of the candidates in the search's order), which ``policy_latency`` never meets: its replay stands on one
+    spot, and decisions from one spot do not count towards a stall. The shield is the reference preset's, its
+    map the world's true ground sampled every 0.1 m over a square of ``DETOUR_SEEN_M`` m around each of the
+    bench's poses (every cell known: the search's largest map), the goal ``DETOUR_GOAL_M`` m away on a random
+    bearing, the stall forced; the figures are the medians over the repeats of each run's p50 and p99."""
+    import time
+
+    from diana_lab.candidates import candidate_offsets, turned
+    from diana_lab.config import compose, to_object
+    from diana_lab.slope_shield import ShieldSettings, SlopeShield
+
+    cfg = compose(["+experiment=reference"])
+    eval_cfg = to_object("eval", cfg.eval)
+    action = to_object("action_space", cfg.action_space)
+    settings = ShieldSettings.from_config(eval_cfg.shield, to_object("robot", cfg.robot))
+    if settings.detour_after < 1:
+        settings.detour_after = 4
+    shield = SlopeShield(settings)
+    offsets = candidate_offsets(action.headings, tuple(action.distances))
+    rng = np.random.default_rng(ctx.seed)
+    terrain = ctx.world.terrain
+    g = np.arange(-DETOUR_SEEN_M, DETOUR_SEEN_M, 0.1) + 0.05
+    gx, gy = np.meshgrid(g, g)
+    cases = []
+    for position, rpy in ctx.poses[: ctx.size(24, 6)]:
+        xy = position[:2]
+        pts = np.stack([gx.ravel() + xy[0], gy.ravel() + xy[1]])
+        z = terrain.height_at(pts)
+        a = rng.uniform(-np.pi, np.pi)
+        goal = xy + DETOUR_GOAL_M * np.array([np.cos(a), np.sin(a)])
+        cases.append((np.column_stack([pts.T, z]), xy, float(rpy[2]), goal))
+
+    def run() -> dict[str, float]:
+        times, made = [], shield.detours
+        for cloud, xy, yaw, goal in cases:
+            shield.reset()
+            shield.observe(cloud, xy)
+            world = turned(offsets, yaw)
+            for k in range(8):  # eight decisions from places along the way, each stalled
+                start = xy + 0.3 * k * np.array([np.cos(yaw), np.sin(yaw)])
+                shield.detour.best, shield.detour.since = 0.0, shield.detour.after  # stalled: no progress counts
+                t0 = time.perf_counter()
+                shield.choose(np.arange(len(world)), world, start, goal)
+                times.append(1000.0 * (time.perf_counter() - t0))
+        return {
+            "p50": float(np.percentile(times, 50)),
+            "p99": float(np.percentile(times, 99)),
+            "n": len(times),
+            "detours": shield.detours - made,
+        }
+
+    runs = repeat(run, ctx.repeats)
+    note = (
+        f"SlopeShield.choose with the detour driving (stall forced), reference preset's shield, map = the world's "
+        f"true ground over {2 * DETOUR_SEEN_M:g} m squares, goals {DETOUR_GOAL_M:g} m away; {runs[0]['n']} decisions "
+        f"a run, {runs[0]['detours']} of them driven by the detour (the rest found no way and chose as usual)"
+    )
+    return [
+        figure_from_samples(
+            key,
+            "ms",
+            [r[stat] for r in runs],
+            batch=f"{runs[0]['n']} decisions",
+            note=note,
+            extra={"detours_per_run": runs[0]["detours"]},
+        )
+        for key, stat in zip(DETOUR_KEYS, ("p50", "p99"))
     ]

@@ -37,6 +37,7 @@ ORDER = (
     "train_fps_ppo",
     "expert_label_ms",
     "policy_latency",
+    "detour_latency",
     "rss_per_env",
 )
 ANCHORS = {

@@ -61,8 +61,22 @@ class ShieldConfig:
     smooth_roughness: float = 0.0
     smooth_obstacle_height: float = 0.0  # m, below obstacle_height
     smooth_radius: float = 3.0  # m
+    # once this many decisions (each from a new place) have passed without the rover coming ``detour_progress`` m
+    # nearer the goal than ever, drive the allowed candidate with the least length + cost to go from its end over
+    # the shield's map (slopes over limit_deg for every heading and hazards felt untraversable, unseen ground
+    # drivable; searched within ``detour_margin`` of the rover and the goal): round a wall, not along it; 0: off
+    detour_after: int = 0
+    detour_progress: float = 0.5  # m
+    detour_margin: float = 10.0  # m
 
     def __post_init__(self) -> None:
+        if isinstance(self.detour_after, bool) or not isinstance(self.detour_after, int) or self.detour_after < 0:
+            raise ConfigError(
+                "eval.shield.detour_after: expected a whole number of decisions >= 0 (0: off), "
+                f"got {self.detour_after!r}"
+            )
+        positive("eval.shield.detour_progress", self.detour_progress)
+        positive("eval.shield.detour_margin", self.detour_margin)
         non_negative("eval.shield.smooth_roughness", self.smooth_roughness)
         non_negative("eval.shield.smooth_obstacle_height", self.smooth_obstacle_height)
         positive("eval.shield.smooth_radius", self.smooth_radius)

@@ -27,16 +27,18 @@ Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 
 # the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``; a policy
 # behind the slope shield adds ``shield_veto_rate``, ``shield_revisit_rate``, ``shield_fallback_rate``,
-# ``shield_approach_rate`` and ``shield_<check>_veto_rate`` (and their intervals) after them
+# ``shield_approach_rate``, ``shield_detour_rate`` and ``shield_<check>_veto_rate`` (and their intervals) after them
 # per-step rates from optional per-episode counts, (column, summary key), in the summary's order: behind the slope
 # shield the decisions it changed, those its place rule changed (eval.shield.revisit_radius), those that found no
-# candidate allowed (its tilt check dropped), those its final approach made (eval.shield.approach_radius), and the
-# vetoes put down to each check (one veto can fail several); with the rover's tilt guard, the waypoints it halted
+# candidate allowed (its tilt check dropped), those its final approach made (eval.shield.approach_radius), those its
+# detour made (eval.shield.detour_after), and the vetoes put down to each check (one veto can fail several); with
+# the rover's tilt guard, the waypoints it halted
 PER_STEP_RATES = (
     ("shield_vetoes", "shield_veto_rate"),
     ("shield_revisits", "shield_revisit_rate"),
     ("shield_fallbacks", "shield_fallback_rate"),
     ("shield_approaches", "shield_approach_rate"),
+    ("shield_detours", "shield_detour_rate"),
     *((f"shield_{check}_vetoes", f"shield_{check}_veto_rate") for check in VETO_CHECKS),
     ("halts", "halt_rate"),
 )

@@ -165,6 +165,7 @@ class ShieldedPolicy:
             "shield_revisits": shield.revisits,
             "shield_fallbacks": shield.fallbacks,
             "shield_approaches": shield.approaches,
+            "shield_detours": shield.detours,
         }
         counts.update({f"shield_{check}_vetoes": shield.vetoed_by[check] for check in VETO_CHECKS})
         return counts
@@ -175,9 +176,11 @@ class ShieldedPolicy:
         (``eval.shield.revisit_radius``: the first allowed candidate ended where the rover had stood), and
         ``shield_fallbacks``, the decisions that found no candidate allowed (its tilt check then dropped), and
         ``shield_approaches``, those its final approach made (``eval.shield.approach_radius``: the goal in reach,
-        the straight drive for it allowed; not counted as vetoes); and per check, ``shield_<check>_vetoes``, the
-        vetoes whose policy's choice failed that check (``tilt``, ``hazard``, ``obstacle``, ``peak``; ``place``:
-        it passed them all and the place rule turned from it), one veto counting under each check it failed."""
+        the straight drive for it allowed; not counted as vetoes), and ``shield_detours``, those its detour made
+        (``eval.shield.detour_after``: no progress for that many decisions; not counted as vetoes); and per check,
+        ``shield_<check>_vetoes``, the vetoes whose policy's choice failed that check (``tilt``, ``hazard``,
+        ``obstacle``, ``peak``; ``place``: it passed them all and the place rule turned from it), one veto counting
+        under each check it failed."""
         return {name: count - self._before[name] for name, count in self._counters().items()}
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:

@@ -33,6 +33,7 @@ DOCUMENTED = {
     "physics_realtime_factor_husky", "physics_realtime_factor_rocker_bogie", "kinematic_waypoints_per_s",
     "env_steps_per_s_kinematic", "env_steps_per_s_physics", "vec_env_scaling_2", "train_fps_ppo",
     "policy_latency_ms_p50", "policy_latency_ms_p99", "rss_mb_per_env", "expert_label_ms",
+    "shield_detour_ms_p50", "shield_detour_ms_p99",
 }  # fmt: skip
 
 
@@ -76,6 +77,17 @@ def test_expert_label_figure_times_the_reference_recipes_expert(tmp_path):
     fig = run(cfg, command="pytest")["figures"]["expert_label_ms"]
     assert fig["value"] > 0 and fig["unit"] == "ms" and fig["batch"] == "30 labels"
     assert fig["note"].startswith("astar_seen on +experiment=reference")
+
+
+def test_the_detour_figure_times_stalled_decisions_of_the_reference_shield(tmp_path):
+    only = "only=[shield_detour_ms_p50,shield_detour_ms_p99]"
+    cfg = compose(["quick=true", "repeats=1", f"output={tmp_path / 'b.json'}", only], "bench")
+    figures = run(cfg, command="pytest")["figures"]
+    assert set(figures) == {"shield_detour_ms_p50", "shield_detour_ms_p99"}
+    p50, p99 = figures["shield_detour_ms_p50"], figures["shield_detour_ms_p99"]
+    assert 0 < p50["value"] <= p99["value"] and p50["unit"] == "ms" and p50["batch"] == "48 decisions"
+    assert "detour driving" in p50["note"] and p50["target"] is None
+    assert p50["detours_per_run"] >= 40  # most of the 48 stalled decisions found a way and drove it
 
 
 def test_every_documented_key_is_registered_once():

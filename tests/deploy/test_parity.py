@@ -126,8 +126,8 @@ def test_other_sensors_and_action_spaces_match_torch(name, tmp_path, small_world
 def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded_policy(tmp_path, small_world):
     """The sidecar carries the shield; the runtime maps the cloud itself and walks the graph's logits: the same
     waypoints as the simulator's ``ShieldedPolicy``, including where it vetoed the policy's choice (by the map's
-    slopes, by what rises within the footprint, by peaks, by the hazards the tilt guard reported) and where it drove
-    straight for the goal (its final approach)."""
+    slopes, by what rises within the footprint, by peaks, by the hazards the tilt guard reported), where it drove
+    straight for the goal (its final approach) and where, stalled, it drove round what blocked it (its detour)."""
     overrides = [
         "sensor=lidar3d",
         "sensor.encoding=elevation_map",
@@ -150,6 +150,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         "eval.shield.peak_min_known=5",
         "eval.shield.smooth_roughness=0.05",  # and, on ground that smooth, rises over 0.03 m
         "eval.shield.smooth_obstacle_height=0.03",
+        "eval.shield.detour_after=2",  # and, stalled, drives round what its map shows blocking the goal
     ]
     run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
     try:
@@ -159,7 +160,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         err = replay(nav, rec)
     finally:
         run.env.close()
-    counts = f"vetoes {policy.shield.vetoes}, approaches {policy.shield.approaches}"
+    counts = f"vetoes {policy.shield.vetoes}, approaches {policy.shield.approaches}, detours {policy.shield.detours}"
     print(f"shielded parity over 150 observations: {err}; {counts}")
     assert nav.spec.shield is not None and nav.spec.shield["limit_deg"] == 6.0
     assert nav.spec.shield["hazard_radius"] == 0.5 and nav.spec.shield["min_range"] == 1.0
@@ -171,5 +172,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
     assert sum(h is not None for h in rec.hazards) > 0  # the guard tripped, and the runtime was told
     assert nav.shield.vetoes == policy.shield.vetoes > 10  # the shield changed course, the same times in both
     assert nav.shield.approaches == policy.shield.approaches > 0  # and made the final approach, the same times
+    assert (peak["detour_after"], peak["detour_progress"], peak["detour_margin"]) == (2, 0.5, 10.0)
+    assert nav.shield.detours == policy.shield.detours > 0  # and the detour, the same times
     assert err["encoding"] <= 1e-6
     assert err["waypoint"] <= TOLERANCE_M

@@ -83,7 +83,7 @@ def test_the_card_holds_every_suite_with_every_rate():
 @pytest.mark.slow
 def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
     """Deterministic policy, fixed suite: the figures come back (within one episode, for other CPUs' float
-    rounding), and they clear the issue's bar for this suite, 90 % success (v0.12 to v0.8: 20 of 20; v0.7 and v0.6: 19;
+    rounding), and they clear the issue's bar for this suite, 90 % success (v0.13 to v0.8: 20 of 20; v0.7 and v0.6: 19;
     v0.5: 18)."""
     want = card()["results"]["mars_yard_20"]
     out = tmp_path / "summary.json"
@@ -127,6 +127,7 @@ def test_the_exported_policy_drives_like_torch_on_1000_mars_yard_observations(tm
     assert err["waypoint"] <= TOLERANCE_M
     assert nav.shield.vetoes == loaded.policy.shield.vetoes > 0  # the sidecar's shield drove it, as in the sim
     assert nav.shield.approaches == loaded.policy.shield.approaches > 0  # its final approach too
+    assert nav.shield.detours == loaded.policy.shield.detours > 0  # and its detour
     # not degenerate: the recording spans many episodes and the policy picks many candidates
     assert sum(rec.starts) >= 10
     assert len(np.unique(np.round(np.asarray(rec.waypoints) - np.asarray(rec.poses)[:, :2], 3), axis=0)) > 50
@@ -186,8 +187,8 @@ def test_without_the_shield_it_is_the_bare_policy_and_baselines_say_they_run_wit
 
 
 def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_path):
-    """``shield_vetoes``, ``shield_revisits``, ``shield_fallbacks`` and ``shield_approaches`` per episode in the rows,
-    their rates (per step, with intervals) in the summary; all absent without the shield."""
+    """``shield_vetoes``, ``shield_revisits``, ``shield_fallbacks``, ``shield_approaches`` and ``shield_detours`` per
+    episode in the rows, their rates (per step, with intervals) in the summary; all absent without the shield."""
     from diana_lab.evaluation import evaluate
 
     rates = {}
@@ -222,6 +223,11 @@ def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_p
             approaches = loaded.policy.shield.approaches
             assert summary["shield_approach_rate"] == pytest.approx(approaches / sum_steps(rows))
             assert summary["success_rate"] > 0 and 0 < approaches <= loaded.policy.shield.decisions
+            # the detour (the preset's eval.shield.detour_after): its decisions, not counted as vetoes
+            assert "shield_detours" in rows[0] and loaded.policy.shield.cfg.detour_after == 4
+            detours = loaded.policy.shield.detours
+            assert summary["shield_detour_rate"] == pytest.approx(detours / sum_steps(rows))
+            assert detours + approaches <= loaded.policy.shield.decisions
             # every veto put down to the checks its policy's choice failed (one can fail several)
             by_check = {c: sum(int(r.split(",")[rows[0].split(",").index(f"shield_{c}_vetoes")]) for r in rows[1:])
                         for c in VETO_CHECKS}  # fmt: skip
@@ -233,7 +239,7 @@ def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_p
         else:
             assert "shield_vetoes" not in rows[0] and "shield_veto_rate" not in summary
             assert "shield_revisit_rate" not in summary and "shield_fallback_rate" not in summary
-            assert "shield_approach_rate" not in summary
+            assert "shield_approach_rate" not in summary and "shield_detour_rate" not in summary
             assert not any(f"shield_{c}_veto_rate" in summary for c in VETO_CHECKS)
     assert rates[True] is not None and rates[False] is None
 

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
+from diana_lab.grid_search import cost_to_go
 from diana_lab.planning import CostMap, build_costmap, next_waypoint
-from diana_lab.planning.grid_search import cost_to_go
 from diana_lab.planning.paths import _graph
 
 

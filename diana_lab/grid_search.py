@@ -6,6 +6,9 @@ cannot reuse one search per episode. With ``scipy.sparse.csgraph.dijkstra`` a st
 graph of the whole map (~19 ms on the 257 x 257 Mars yard) and searched all of it (~20 ms), and labelling
 was nearly all of a DAgger iteration's time. This search walks the grid itself (no graph), from the goal
 towards the rover with an A* bound, and stops when the start and every candidate waypoint are settled.
+The slope shield's detour (:mod:`diana_lab.detour`) searches its own map with it, onboard too: this module
+needs numpy and numba only (it sits outside :mod:`diana_lab.planning`, whose cost maps need the simulator's
+worlds).
 
 Same graph, same costs: an edge joins 8-neighbours that are both traversable (a diagonal only when the two
 cells it cuts past are traversable too) and costs ``(resolution / 2) * step length * (cost_a + cost_b)``
