@@ -36,6 +36,30 @@ DETOUR_SEEN_M = 30.0  # half-width of the square of true ground the shield's map
 MISSING_NOTE = "not measured: the deployment runtime (diana_lab.deploy, onnxruntime) is not installed"
 
 
+def _p50_p99(
+    keys: tuple[str, str],
+    runs: list[dict[str, Any]],
+    batch: str,
+    note: str,
+    extra: dict[str, Any],
+    targets: dict[str, Target] | None = None,
+) -> list[Figure]:
+    """The two figures ``keys`` (p50, p99 in ms): the medians over the repeats of each run's ``p50`` and ``p99``;
+    ``batch`` may name the statistic as ``{stat}``."""
+    return [
+        figure_from_samples(
+            key,
+            "ms",
+            [r[stat] for r in runs],
+            batch=batch.format(stat=stat),
+            target=(targets or {}).get(key),
+            note=note,
+            extra=extra,
+        )
+        for key, stat in zip(keys, ("p50", "p99"))
+    ]
+
+
 def _reference_navigator(folder: Path) -> Any:
     """Export the shipped reference policy and load it as the rover would (None when it is not shipped)."""
     from diana_lab.config import compose, to_object
@@ -124,18 +148,7 @@ def policy_latency(ctx: BenchContext) -> list[Figure]:
         f"Navigator.next_waypoint (goal + {spec.encoding.name} encoding of a {spec.sensor.type} cloud + ONNX "
         f"inference), onnxruntime 1 thread, {which}, synthetic flat-ground cloud"
     )
-    return [
-        figure_from_samples(
-            key,
-            "ms",
-            [r[stat] for r in runs],
-            batch=f"{calls} calls (statistic {stat} of the calls)",
-            target=TARGETS[key],
-            note=note,
-            extra=split,
-        )
-        for key, stat in zip(KEYS, ("p50", "p99"))
-    ]
+    return _p50_p99(KEYS, runs, f"{calls} calls (statistic {{stat}} of the calls)", note, split, TARGETS)
 
 
 @measurement(*DETOUR_KEYS)
@@ -198,14 +211,4 @@ def detour_latency(ctx: BenchContext) -> list[Figure]:
         f"true ground over {2 * DETOUR_SEEN_M:g} m squares, goals {DETOUR_GOAL_M:g} m away; {runs[0]['n']} decisions "
         f"a run, {runs[0]['detours']} of them driven by the detour (the rest found no way and chose as usual)"
     )
-    return [
-        figure_from_samples(
-            key,
-            "ms",
-            [r[stat] for r in runs],
-            batch=f"{runs[0]['n']} decisions",
-            note=note,
-            extra={"detours_per_run": runs[0]["detours"]},
-        )
-        for key, stat in zip(DETOUR_KEYS, ("p50", "p99"))
-    ]
+    return _p50_p99(DETOUR_KEYS, runs, f"{runs[0]['n']} decisions", note, {"detours_per_run": runs[0]["detours"]})

@@ -15,26 +15,17 @@ from diana_lab.config import ConfigError, to_object
 from diana_lab.config.evaluation import ShieldConfig
 from diana_lab.detour import Detour
 from diana_lab.slope_shield import ShieldSettings, SlopeShield
+from tests.sensing.test_slope_shield import ground, shield
 
 ROBOT = to_object("robot", "jackal")
 RING = candidate_offsets(32, (1.0, 2.0, 3.0))  # the reference policy's 96 candidates, world frame at yaw 0
 DETOUR = {"detour_after": 4, "detour_progress": 0.5, "detour_margin": 10.0, "top_k": 96, "hazard_radius": 0.5}
 
 
-def shield(**overrides) -> SlopeShield:
-    return SlopeShield(ShieldSettings.from_config(ShieldConfig(enabled=True, **overrides), ROBOT))
-
-
-def ground(fn, half: float = 8.0, step: float = 0.05) -> np.ndarray:
-    """Dense world points ``z = fn(x, y)`` over a square around the origin, off the 0.2 m cells' edges."""
-    g = np.arange(-half, half + 1e-9, step) + step / 2
-    x, y = np.meshgrid(g, g)
-    return np.column_stack([x.ravel(), y.ravel(), fn(x, y).ravel()])
-
-
 def seen(fn, **overrides) -> SlopeShield:
+    """A shield whose map holds ``z = fn(x, y)`` over 16 m round the origin."""
     s = shield(**overrides)
-    s.observe(ground(fn), np.zeros(2))
+    s.observe(ground(fn, half=8.0), np.zeros(2))
     return s
 
 
@@ -153,7 +144,7 @@ def test_a_goal_on_steep_ground_is_still_reached():
 def test_no_map_or_a_goal_off_it_gives_no_detour():
     s = shield(**DETOUR)
     assert s.detour.costs_to_go(s.memory, s.hazards, np.zeros(2), GOAL, RING) is None  # nothing seen yet
-    s.observe(ground(wall), np.zeros(2))
+    s.observe(ground(wall, half=8.0), np.zeros(2))
     far = np.array([500.0, 0.0])  # the map covers 64 m around the first pose
     assert s.detour.costs_to_go(s.memory, s.hazards, np.zeros(2), far, RING) is None
 
