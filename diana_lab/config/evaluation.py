@@ -9,7 +9,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, ordered, positive
+from diana_lab.config.validation import (
+    ConfigError,
+    in_range,
+    non_negative,
+    non_negative_int,
+    one_of,
+    ordered,
+    positive,
+    positive_int,
+)
 
 DYNAMICS_OPTIONS = ("kinematic", "physics")
 
@@ -70,11 +79,7 @@ class ShieldConfig:
     detour_margin: float = 10.0  # m
 
     def __post_init__(self) -> None:
-        if isinstance(self.detour_after, bool) or not isinstance(self.detour_after, int) or self.detour_after < 0:
-            raise ConfigError(
-                "eval.shield.detour_after: expected a whole number of decisions >= 0 (0: off), "
-                f"got {self.detour_after!r}"
-            )
+        non_negative_int("eval.shield.detour_after", self.detour_after, "0: off")
         positive("eval.shield.detour_progress", self.detour_progress)
         positive("eval.shield.detour_margin", self.detour_margin)
         non_negative("eval.shield.smooth_roughness", self.smooth_roughness)
@@ -99,8 +104,7 @@ class ShieldConfig:
         positive("eval.shield.spacing", self.spacing)
         positive("eval.shield.radius", self.radius)
         in_range("eval.shield.limit_deg", self.limit_deg, 0.0, 90.0, inclusive=False)
-        if isinstance(self.top_k, bool) or not isinstance(self.top_k, int) or self.top_k < 1:
-            raise ConfigError(f"eval.shield.top_k: expected a positive integer, got {self.top_k!r}")
+        positive_int("eval.shield.top_k", self.top_k)
 
 
 @dataclass
@@ -120,10 +124,8 @@ class EvalConfig:
     shield: ShieldConfig = field(default_factory=ShieldConfig)  # a slope check on learnt discrete policies
 
     def __post_init__(self) -> None:
-        if isinstance(self.episodes, bool) or not isinstance(self.episodes, int) or self.episodes <= 0:
-            raise ConfigError(f"eval.episodes: expected a positive integer, got {self.episodes!r}")
-        if isinstance(self.every, bool) or not isinstance(self.every, int) or self.every < 0:
-            raise ConfigError(f"eval.every: expected an integer >= 0 (0 disables), got {self.every!r}")
+        positive_int("eval.episodes", self.episodes)
+        non_negative_int("eval.every", self.every, "0 disables")
         non_negative("eval.min_distance", self.min_distance)
         ordered("eval.min_distance", self.min_distance, "eval.max_distance", self.max_distance)
         if self.dynamics is not None:

@@ -15,7 +15,15 @@ from typing import Any
 from omegaconf import MISSING
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, positive
+from diana_lab.config.validation import (
+    ConfigError,
+    in_range,
+    non_negative,
+    non_negative_int,
+    one_of,
+    positive,
+    positive_int,
+)
 
 VEC_ENVS = ("dummy", "subproc")
 # torch device strings SB3 accepts ("auto": cuda when available); checked here, not by torch deep in the run
@@ -43,19 +51,9 @@ NON_SB3_KEYS = frozenset(
 GAUSSIAN_POLICY_KWARGS = ("log_std_init", "full_std", "use_expln", "squash_output")
 
 
-def _positive_int(key: str, value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ConfigError(f"{key}: expected a positive integer, got {value!r}")
-
-
-def _non_negative_int(key: str, value: int) -> None:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-        raise ConfigError(f"{key}: expected an integer >= 0, got {value!r}")
-
-
 def _layers(key: str, value: list[int]) -> None:
     for i, v in enumerate(value):
-        _positive_int(f"{key}[{i}]", v)
+        positive_int(f"{key}[{i}]", v)
 
 
 # ----------------------------------------------------------------------------------------------- algo
@@ -101,7 +99,7 @@ class PlannerConfig(_MapGeometry):
 
     def __post_init__(self) -> None:
         for key in ("pool", "hidden", "actions", "iterations", "patch"):
-            _positive_int(f"algo.extractor.planner.{key}", getattr(self, key))
+            positive_int(f"algo.extractor.planner.{key}", getattr(self, key))
         self._check_geometry("algo.extractor.planner")
 
     def geometry(self) -> dict[str, float]:
@@ -125,7 +123,7 @@ class CostToGoConfig(_MapGeometry):
     def __post_init__(self) -> None:
         key = "algo.extractor.cost_to_go"
         for name in ("pool", "hidden", "iterations"):
-            _positive_int(f"{key}.{name}", getattr(self, name))
+            positive_int(f"{key}.{name}", getattr(self, name))
         if not isinstance(self.grad_iterations, int) or not 0 <= self.grad_iterations <= self.iterations:
             raise ConfigError(
                 f"{key}.grad_iterations: expected an integer in [0, iterations={self.iterations}], "
@@ -169,7 +167,7 @@ class ExtractorConfig:
                 "algo.extractor: goal_hidden, cnn_channels and point_hidden need at least one "
                 "layer each, cnn_pool exactly two numbers"
             )
-        _positive_int("algo.extractor.sensor_features", self.sensor_features)
+        positive_int("algo.extractor.sensor_features", self.sensor_features)
         one_of("algo.extractor.elevation_encoder", self.elevation_encoder, ELEVATION_ENCODERS)
 
 
@@ -221,7 +219,7 @@ class OnPolicyConfig(AlgoConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        _positive_int("algo.n_steps", self.n_steps)
+        positive_int("algo.n_steps", self.n_steps)
         in_range("algo.gae_lambda", self.gae_lambda, 0.0, 1.0)
         non_negative("algo.ent_coef", self.ent_coef)
         non_negative("algo.vf_coef", self.vf_coef)
@@ -242,8 +240,8 @@ class PPOConfig(OnPolicyConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        _positive_int("algo.batch_size", self.batch_size)
-        _positive_int("algo.n_epochs", self.n_epochs)
+        positive_int("algo.batch_size", self.batch_size)
+        positive_int("algo.n_epochs", self.n_epochs)
         positive("algo.clip_range", self.clip_range)
 
 
@@ -272,11 +270,11 @@ class OffPolicyConfig(AlgoConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        _positive_int("algo.buffer_size", self.buffer_size)
-        _non_negative_int("algo.learning_starts", self.learning_starts)
-        _positive_int("algo.batch_size", self.batch_size)
+        positive_int("algo.buffer_size", self.buffer_size)
+        non_negative_int("algo.learning_starts", self.learning_starts)
+        positive_int("algo.batch_size", self.batch_size)
         in_range("algo.tau", self.tau, 0.0, 1.0)
-        _positive_int("algo.train_freq", self.train_freq)
+        positive_int("algo.train_freq", self.train_freq)
         if (
             isinstance(self.gradient_steps, bool)
             or not isinstance(self.gradient_steps, int)
@@ -304,7 +302,7 @@ class TQCConfig(SACConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        _non_negative_int("algo.top_quantiles_to_drop_per_net", self.top_quantiles_to_drop_per_net)
+        non_negative_int("algo.top_quantiles_to_drop_per_net", self.top_quantiles_to_drop_per_net)
 
 
 @dataclass
@@ -329,7 +327,7 @@ class TD3Config(DDPGConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        _positive_int("algo.policy_delay", self.policy_delay)
+        positive_int("algo.policy_delay", self.policy_delay)
         non_negative("algo.target_policy_noise", self.target_policy_noise)
         non_negative("algo.target_noise_clip", self.target_noise_clip)
 
@@ -400,14 +398,14 @@ class ImitationConfig:
         non_negative(f"{key}.cost_weight", self.cost_weight)
         one_of(f"{key}.expert", self.expert, EXPERTS)
         positive(f"{key}.knowledge_radius", self.knowledge_radius)
-        _positive_int(f"{key}.iterations", self.iterations)
-        _positive_int(f"{key}.steps_per_iteration", self.steps_per_iteration)
+        positive_int(f"{key}.iterations", self.iterations)
+        positive_int(f"{key}.steps_per_iteration", self.steps_per_iteration)
         in_range(f"{key}.beta", self.beta, 0.0, 1.0)
         in_range(f"{key}.beta_decay", self.beta_decay, 0.0, 1.0)
-        _positive_int(f"{key}.epochs", self.epochs)
-        _positive_int(f"{key}.batch_size", self.batch_size)
+        positive_int(f"{key}.epochs", self.epochs)
+        positive_int(f"{key}.batch_size", self.batch_size)
         positive(f"{key}.learning_rate", self.learning_rate)
-        _non_negative_int(f"{key}.fit_threads", self.fit_threads)
+        non_negative_int(f"{key}.fit_threads", self.fit_threads)
         if self.log_std is not None:
             in_range(f"{key}.log_std", self.log_std, -5.0, 2.0)
 
@@ -435,8 +433,8 @@ class TrainConfig:
     imitation: ImitationConfig = field(default_factory=ImitationConfig)
 
     def __post_init__(self) -> None:
-        _positive_int("train.total_timesteps", self.total_timesteps)
-        _positive_int("train.n_envs", self.n_envs)
+        positive_int("train.total_timesteps", self.total_timesteps)
+        positive_int("train.n_envs", self.n_envs)
         for i, entry in enumerate(self.worlds):
             name, *overrides = str(entry).split() or [""]
             if not name or any(not o.startswith("world.") or "=" not in o for o in overrides):
@@ -450,9 +448,9 @@ class TrainConfig:
                 f"train.n_envs >= {1 + len(self.worlds)}, got {self.n_envs}: a world without an env is never trained in"
             )
         one_of("train.vec_env", self.vec_env, VEC_ENVS)
-        _non_negative_int("train.checkpoint_every", self.checkpoint_every)
-        _positive_int("train.log_interval", self.log_interval)
-        _non_negative_int("train.torch_threads", self.torch_threads)
+        non_negative_int("train.checkpoint_every", self.checkpoint_every)
+        positive_int("train.log_interval", self.log_interval)
+        non_negative_int("train.torch_threads", self.torch_threads)
         if not DEVICE.match(str(self.device)):
             raise ConfigError(
                 f"train.device: expected 'cpu', 'cuda', 'cuda:<index>', 'mps' or 'auto', got {self.device!r}"

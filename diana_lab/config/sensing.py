@@ -13,19 +13,23 @@ from dataclasses import dataclass, field
 from omegaconf import MISSING
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import ConfigError, in_range, length, non_negative, one_of, ordered, positive
+from diana_lab.config.validation import (
+    ConfigError,
+    in_range,
+    length,
+    non_negative,
+    non_negative_int,
+    one_of,
+    ordered,
+    positive,
+    positive_int,
+)
 
 ENCODINGS = ("depth_image", "elevation_map", "points")
 BACKENDS = ("heightfield", "open3d")  # ray casters: diana_lab/sensing/heightfield_cast.py, open3d RaycastingScene
 NOISE_PRESETS = ("none", "realistic", "harsh")  # their numbers live in diana_lab/sensing/noise.py
 POINT_METHODS = ("voxel", "fps")
 MAX_RAYS = 1 << 20  # a frame of more rays than this is a typo, not a sensor
-
-
-def positive_int(key: str, value: int) -> None:
-    """Resolutions and counts: a positive whole number (``sensor.width: expected a positive integer``)."""
-    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-        raise ConfigError(f"{key}: expected a positive integer, got {value!r}")
 
 
 @dataclass
@@ -134,8 +138,7 @@ class SensorConfig:
         non_negative("sensor.noise_level", self.noise_level)
         one_of("sensor.encoding", self.encoding, ENCODINGS)
         one_of("sensor.backend", self.backend, BACKENDS)
-        if isinstance(self.nthreads, bool) or not isinstance(self.nthreads, int) or self.nthreads < 0:
-            raise ConfigError(f"sensor.nthreads: expected an integer >= 0, got {self.nthreads!r}")
+        non_negative_int("sensor.nthreads", self.nthreads)
 
 
 @dataclass

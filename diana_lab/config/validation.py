@@ -20,6 +20,18 @@ def non_negative(key: str, value: float) -> None:
         raise ConfigError(f"{key}: expected a number >= 0, got {value!r}")
 
 
+def positive_int(key: str, value: int) -> None:
+    """Resolutions and counts: a positive whole number (a bool is not one)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+        raise ConfigError(f"{key}: expected a positive integer, got {value!r}")
+
+
+def non_negative_int(key: str, value: int, note: str = "") -> None:
+    """A whole number >= 0; ``note`` says what 0 means (e.g. ``"0 disables"``)."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ConfigError(f"{key}: expected an integer >= 0{f' ({note})' if note else ''}, got {value!r}")
+
+
 def in_range(key: str, value: float, lo: float, hi: float, *, inclusive: bool = True) -> None:
     ok = lo <= value <= hi if inclusive else lo < value < hi
     if not (isinstance(value, int | float) and math.isfinite(value) and ok):
