@@ -1,6 +1,7 @@
 """The onboard policy: pose estimate + goal + raw point cloud -> the next world-frame waypoint.
 
-Needs numpy and onnxruntime only (open3d for the ``elevation_map``/``points`` encodings). The ONNX graph
+Needs numpy and onnxruntime only (open3d for the ``elevation_map``/``points`` encodings, numba for a sidecar
+whose shield has the detour on, ``detour_after`` > 0, as the reference policy's does). The ONNX graph
 holds the network, the observation normalisation, the action clipping and the action -> waypoint-offset
 mapping (square or Shirley-Chiu disc, ``min_distance``); the offset comes out in the action frame, and
 :meth:`Navigator.waypoint` turns it by the pose's yaw (``action_space.frame=rover``) and adds the position
