@@ -24,7 +24,8 @@ rover's track (2 x 2 map cells for the Jackal on 0.2 m cells) and drivable only 
 so a gap in a wall narrower than the rover is no way through (single map cells: the yard's validation suites
 0.94 / 0.89 / 0.89 against 0.97 / 0.95 / 0.95); those within ``hazard_radius`` of a hazard felt are not drivable
 either. Every other search cell costs its length, seen or not, and those within :data:`GOAL_CLEARANCE` of the
-goal's (per axis) are drivable: the goal is where the rover has to go, even on a steep spot.
+goal's (per axis) are drivable: the goal is where the rover has to go, even on a steep spot. With the shield's
+relief check on (``relief``), the cells it calls relief hazards are walls too.
 :func:`diana_lab.grid_search.cost_to_go` searches it (numba; onboard too).
 
 Validation suites (100 episodes each), v0.12 -> ``after`` 4, ``progress`` 0.5 m, ``margin`` 10 m: see
@@ -40,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from diana_lab.height_memory import HeightMemory
+from diana_lab.relief import ReliefLimits, relief_hazards
 
 __all__ = ["GOAL_CLEARANCE", "Detour"]
 
@@ -68,10 +70,19 @@ class Detour:
         hazard_radius: metres around a hazard felt that the search does not cross (0: none).
         pool: a search cell is ``pool`` x ``pool`` map cells, drivable when all of them are (the shield passes the
             track width in cells: a gap in a wall narrower than the rover is no way through).
+        relief: with the shield's relief check on, its limits: the map cells it calls hazards (on the map's mean
+            layer, :mod:`diana_lab.relief`) are not drivable either.
     """
 
     def __init__(
-        self, after: int, progress: float, margin: float, limit_deg: float, hazard_radius: float, pool: int = 1
+        self,
+        after: int,
+        progress: float,
+        margin: float,
+        limit_deg: float,
+        hazard_radius: float,
+        pool: int = 1,
+        relief: ReliefLimits | None = None,
     ) -> None:
         if not (after >= 1 and progress > 0 and margin > 0 and 0 < limit_deg < 90 and hazard_radius >= 0 and pool >= 1):
             raise ValueError(
@@ -82,6 +93,7 @@ class Detour:
         self.slope_limit = math.tan(math.radians(limit_deg))
         self.hazard_radius = float(hazard_radius)
         self.pool = int(pool)
+        self.relief = relief
         self.search = _cost_to_go()
         self.reset()
 
@@ -118,7 +130,10 @@ class Detour:
         along_axes = np.maximum(np.abs(gx), np.abs(gy))  # headings 0 and 90 degrees: pitch and roll
         diagonal = np.maximum(np.abs(gx + gy), np.abs(gx - gy)) / math.sqrt(2.0)  # 45 and 135 degrees
         with np.errstate(invalid="ignore"):
-            return ~(np.minimum(along_axes, diagonal) > self.slope_limit)  # NaN (unseen): drivable
+            free = ~(np.minimum(along_axes, diagonal) > self.slope_limit)  # NaN (unseen): drivable
+        if self.relief is not None and memory.mean_height is not None:
+            free &= ~relief_hazards(memory.mean_height.reshape(n, n), box, memory.cell_size, self.relief)
+        return free
 
     def costs_to_go(
         self,
@@ -183,8 +198,10 @@ class Detour:
             return None
         # the shield's checks (SlopeShield.allows), the cheap ones for every drive with a way at once
         ok = np.zeros(len(offsets), dtype=bool)
-        ok[way] = (shield.steepest_many(start, offsets[way]) <= shield.cfg.limit_deg) & ~shield.near_hazard(
-            start, offsets[way]
+        ok[way] = (
+            (shield.steepest_many(start, offsets[way]) <= shield.cfg.limit_deg)
+            & ~shield.near_hazard(start, offsets[way])
+            & ~shield.relief_crosses(start, offsets[way])
         )
         for j in np.lexsort((score, ~fresh)):
             if ok[j] and not shield.obstructed(start, offsets[j]):

@@ -14,7 +14,11 @@ The map is a square of ``2 * radius`` centred on the first pose of the episode (
 it works the same on a rover). Each update writes, for every cell the frame hit, the highest point of that
 frame: the latest frame wins, so a spurious return (dust) is overwritten when the cell is seen again,
 instead of sticking as a maximum would. Points outside the square are dropped; window cells outside it
-are unknown.
+are unknown. With ``mean=True`` a second layer, :attr:`HeightMemory.mean_height`, holds each cell's mean of every
+return it has had this episode (the relief check's input, :mod:`diana_lab.relief`): pooled over the frames, not
+the latest frame's, since the mean averages noise out where the highest return is biased up by it (Mars yard
+validation suite with four hazard cameras, pooled against the latest frame's: SPL 0.765 / 0.716, physics 0.81 /
+0.77).
 """
 
 from __future__ import annotations
@@ -38,7 +42,14 @@ class HeightMemory:
     """
 
     def __init__(
-        self, cell_size: float, radius: float, rows: int, cols: int, extent_forward: float, extent_side: float
+        self,
+        cell_size: float,
+        radius: float,
+        rows: int,
+        cols: int,
+        extent_forward: float,
+        extent_side: float,
+        mean: bool = False,
     ) -> None:
         if not cell_size > 0 or not radius > 0:
             raise ValueError(f"HeightMemory: expected a positive cell_size and radius, got {cell_size}, {radius}")
@@ -48,6 +59,11 @@ class HeightMemory:
         self.origin: np.ndarray | None = None  # world xy of the map's corner (set by the first update)
         self.last_world: np.ndarray | None = None  # the world points of the latest fuse()
         self._top = np.full(self.n * self.n, -np.inf, dtype=np.float32)  # scratch, back to -inf after use
+        # with ``mean``: also each cell's mean of every return it has had this episode (what :mod:`diana_lab.relief`
+        # judges: the highest return is biased up by range noise, and pooling the frames averages it out); None without
+        self.mean_height: np.ndarray | None = np.full(self.n * self.n, np.nan, dtype=np.float32) if mean else None
+        self._sum = np.zeros(self.n * self.n if mean else 0)
+        self._count = np.zeros(self.n * self.n if mean else 0, dtype=np.int64)
         # window cell centres in the heading-aligned frame (x forward, y left), row-major
         ahead = extent_forward - (np.arange(rows) + 0.5) * cell_size
         left = extent_side - (np.arange(cols) + 0.5) * cell_size
@@ -57,6 +73,10 @@ class HeightMemory:
     def reset(self) -> None:
         """Forget everything: a new episode (a new goal on a rover) starts with an empty map."""
         self.height.fill(np.nan)
+        if self.mean_height is not None:
+            self.mean_height.fill(np.nan)
+            self._sum.fill(0.0)
+            self._count.fill(0)
         self.origin = None
 
     def _cells(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +103,15 @@ class HeightMemory:
         # repeated cells all copy the same maximum, so no np.unique (a third of the update's time)
         self.height[cell] = self._top[cell]
         self._top[cell] = -np.inf
+        if self.mean_height is not None and len(cell):
+            lo = int(cell.min())  # counted over the span of cells the frame hit, not the whole map
+            total = np.bincount(cell - lo, weights=z)
+            hits = np.bincount(cell - lo)
+            seen = np.flatnonzero(hits)
+            total, hits, seen = total[seen], hits[seen], seen + lo
+            self._sum[seen] += total
+            self._count[seen] += hits
+            self.mean_height[seen] = self._sum[seen] / self._count[seen]
 
     def heights_at(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The map's heights at world points ``x, y`` (same shape) and whether each point's cell was hit.

@@ -78,6 +78,7 @@ import numpy as np
 
 from diana_lab.detour import Detour
 from diana_lab.height_memory import HeightMemory
+from diana_lab.relief import ReliefLimits, relief_hazards
 from diana_lab.rotations import leveling_matrix
 
 if TYPE_CHECKING:  # numpy only at run time: the onboard runtime imports this module without Hydra
@@ -86,10 +87,17 @@ if TYPE_CHECKING:  # numpy only at run time: the onboard runtime imports this mo
 
 __all__ = ["VETO_CHECKS", "ShieldSettings", "SlopeShield"]
 
+# the relief check: a footprint this much wider than the rover's (m; the cost map judges a cell by the ground
+# round it, and a wheel meets a step before the body's circle does), and the points of a drive it is judged at
+RELIEF_MARGIN = 0.1
+RELIEF_SAMPLES = 30
+RELIEF_ALONG = np.linspace(0.05, 1.0, RELIEF_SAMPLES)
+
 # the checks a veto of the policy's own choice is put down to (:attr:`SlopeShield.vetoed_by`), in report order;
 # ``place``: the place rule (allowed, but it ended where the rover had stood: ``revisits``)
 # ``smooth``: a rise over the smooth-ground limit but not over ``obstacle_height``
-VETO_CHECKS = ("tilt", "hazard", "obstacle", "smooth", "peak", "place")
+# ``relief``: the drive crosses a cell the relief check calls a hazard (``relief``; diana_lab.relief)
+VETO_CHECKS = ("tilt", "relief", "hazard", "obstacle", "smooth", "peak", "place")
 
 
 def closest_approach(offsets: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -129,6 +137,11 @@ class ShieldSettings:
     detour_after: int = 0  # decisions without progress before the detour drives; 0: off (older sidecars)
     detour_progress: float = 0.5  # m nearer the goal than ever that count as progress
     detour_margin: float = 10.0  # m around the rover and the goal that the detour's search covers
+    relief: bool = False  # the relief check (diana_lab.relief) on the map's mean layer; off (older sidecars)
+    relief_slope_deg: float = 22.0  # a footprint plane steeper than this is a hazard
+    relief_step: float = 0.08  # m: a de-tilted step between neighbouring footprint cells over this is one
+    relief_roughness: float = 0.065  # m RMS about the footprint plane over this is one
+    relief_min_known: int = 8  # footprint cells that must be known for a cell to be judged
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -156,6 +169,11 @@ class ShieldSettings:
             int(cfg.detour_after),
             float(cfg.detour_progress),
             float(cfg.detour_margin),
+            bool(cfg.relief),
+            float(cfg.relief_slope_deg),
+            float(cfg.relief_step),
+            float(cfg.relief_roughness),
+            int(cfg.relief_min_known),
         )
 
     @classmethod
@@ -214,6 +232,18 @@ class SlopeShield:
                 "SlopeShield: expected detour_after >= 0, a positive detour_progress and detour_margin, got "
                 f"{settings.detour_after}, {settings.detour_progress}, {settings.detour_margin}"
             )
+        self.relief: ReliefLimits | None = None
+        if settings.relief:
+            try:
+                self.relief = ReliefLimits(
+                    settings.relief_slope_deg,
+                    settings.relief_step,
+                    settings.relief_roughness,
+                    settings.footprint_radius + RELIEF_MARGIN,
+                    settings.relief_min_known,
+                )
+            except ValueError as exc:
+                raise ValueError(f"SlopeShield: the relief check's settings: {exc}") from exc
         self.detour = (
             Detour(
                 settings.detour_after,
@@ -222,6 +252,7 @@ class SlopeShield:
                 settings.limit_deg,
                 settings.hazard_radius,
                 pool=max(1, round(2.0 * settings.half_track / settings.cell_size)),  # the track width in cells
+                relief=self.relief,
             )
             if settings.detour_after > 0
             else None
@@ -235,7 +266,8 @@ class SlopeShield:
         self._footprint = np.concatenate([np.zeros((1, 2)), 0.5 * r * unit[::2], r * unit])  # (13, 2)
         self.cfg = settings
         self._footprint_checks = settings.obstacle_height > 0 or settings.peak_height > 0
-        self.memory = HeightMemory(settings.cell_size, settings.radius, 1, 1, 0.0, 0.0)
+        self.memory = HeightMemory(settings.cell_size, settings.radius, 1, 1, 0.0, 0.0, mean=settings.relief)
+        self._relief_at: tuple[float, float, float, int, int, np.ndarray] | None = None  # since the map changed
         self._samples: dict[float, np.ndarray] = {}  # distances along a drive, per drive length
         self.half_base, self.half_track = settings.half_base, settings.half_track
         self.decisions = 0  # calls of choose() since construction
@@ -255,6 +287,7 @@ class SlopeShield:
         the suite)."""
         self.memory.reset()
         self._smooth_at = None
+        self._relief_at = None
         if self.detour is not None:
             self.detour.reset()
         self.hazards = np.zeros((0, 2))
@@ -279,11 +312,42 @@ class SlopeShield:
         reach = np.minimum(np.hypot(rel[:, 0], rel[:, 1]), self.cfg.hazard_radius)
         return (closest < reach).any(axis=1)
 
+    def relief_crosses(self, start_xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        """Whether each straight drive in ``offsets`` ``(K, 2)`` from ``start_xy`` crosses a cell the relief check
+        calls a hazard (:mod:`diana_lab.relief`, on the map's mean layer), ``(K,)`` bool; all False with the check
+        off. Judged at :data:`RELIEF_SAMPLES` points from 5 % of the way to its end (the rover's own cell is
+        where it stands: a hazard there would veto every drive), on one grid round the rover per decision."""
+        offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
+        if self.relief is None or self.memory.origin is None or len(offsets) == 0:
+            return np.zeros(len(offsets), dtype=bool)
+        start = np.asarray(start_xy, dtype=np.float64)[:2]
+        mem, c = self.memory, self.memory.cell_size
+        reach = float(np.sqrt((offsets * offsets).sum(axis=1)).max()) + c
+        cached = self._relief_at
+        if cached is None or cached[:3] != (start[0], start[1], reach):
+            lo = np.floor((start - reach - mem.origin) / c).astype(int)
+            hi = np.ceil((start + reach - mem.origin) / c).astype(int)
+            ix0, iy0 = max(0, int(lo[0])), max(0, int(lo[1]))
+            ix1, iy1 = min(mem.n, int(hi[0])), min(mem.n, int(hi[1]))
+            assert mem.mean_height is not None  # built with mean=True whenever the relief check is on
+            grid = relief_hazards(mem.mean_height.reshape(mem.n, mem.n), (ix0, iy0, ix1, iy1), c, self.relief)
+            cached = self._relief_at = (start[0], start[1], reach, ix0, iy0, grid)
+        ix0, iy0, grid = cached[3], cached[4], cached[5]
+        points = start + RELIEF_ALONG[None, :, None] * offsets[:, None, :]  # (K, S, 2)
+        fx = np.floor((points[..., 0] - mem.origin[0]) / c).astype(np.int64) - ix0
+        fy = np.floor((points[..., 1] - mem.origin[1]) / c).astype(np.int64) - iy0
+        ny, nx = grid.shape
+        if grid.size == 0:
+            return np.zeros(len(offsets), dtype=bool)
+        inside = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
+        return (inside & grid[np.clip(fy, 0, ny - 1), np.clip(fx, 0, nx - 1)]).any(axis=1)
+
     def observe(self, points_world: np.ndarray, rover_xy: np.ndarray) -> None:
         """Fuse one frame's returns, ``(N, 3)`` in the world frame; ``rover_xy`` centres the map on an
         episode's first frame."""
         self.memory.update(np.asarray(points_world, dtype=np.float32).reshape(-1, 3), rover_xy)
         self._smooth_at = None
+        self._relief_at = None
 
     def observe_rover(
         self,
@@ -438,8 +502,9 @@ class SlopeShield:
         start = np.asarray(start_xy, dtype=np.float64)[:2]
         tilt, rise, peak = self._probe_one(start, np.asarray(offset, dtype=np.float64), self._footprint_checks)
         steep = ("tilt",) if float(np.degrees(np.arctan(tilt))) > self.cfg.limit_deg else ()
+        relief = ("relief",) if self.relief_crosses(start, offset)[0] else ()
         near = ("hazard",) if self.near_hazard(start, offset)[0] else ()
-        return steep + near + self._footprint_failures(rise, peak, start)
+        return steep + relief + near + self._footprint_failures(rise, peak, start)
 
     def _footprint_failures(self, rise: float, peak: float, start: np.ndarray) -> tuple[str, ...]:
         """``obstacle`` (or ``smooth``) and / or ``peak``, for a drive from ``start`` whose footprint rises
@@ -525,7 +590,11 @@ class SlopeShield:
         if first_allowed and fresh[0]:
             return int(top[0])
         rest = offsets[top[1:]]
-        ok = (self.steepest_many(start, rest) <= self.cfg.limit_deg) & ~self.near_hazard(start, rest)
+        ok = (
+            (self.steepest_many(start, rest) <= self.cfg.limit_deg)
+            & ~self.near_hazard(start, rest)
+            & ~self.relief_crosses(start, rest)
+        )
         # the obstacle check costs more a drive: only for the candidates that pass the rest, in the policy's order
         allowed_first = 0 if first_allowed else None  # the first allowed (as an index into top)
         pick = None
@@ -576,8 +645,9 @@ class SlopeShield:
     def _fallback(self, start: np.ndarray, offsets: np.ndarray, fresh: np.ndarray) -> int:
         """No candidate of ``offsets`` (the top ``top_k``, policy order) is allowed: the index of the first not
         near a hazard felt and not obstructed, one that ends away from the places stood on (``fresh``) first;
-        0 (the policy's choice) if every one is. The tilt check alone is dropped: on steep ground it vetoes every
-        drive, and the one that halted is the worst to repeat (see the module docstring)."""
+        0 (the policy's choice) if every one is. The tilt check (and the relief check with it) alone is dropped: on
+        steep ground it vetoes every drive, and the one that halted is the worst to repeat (see the module
+        docstring)."""
         first = None
         for j in np.flatnonzero(~self.near_hazard(start, offsets)):
             if self.obstructed(start, offsets[j]):

@@ -26,13 +26,14 @@ import numpy as np
 
 from diana_lab.benchmarks.core import BenchContext, Figure, Target, figure_from_samples, measurement, repeat
 
-__all__ = ["detour_latency", "policy_latency"]
+__all__ = ["detour_latency", "hazcam_latency", "policy_latency"]
 
 KEYS = ("policy_latency_ms_p50", "policy_latency_ms_p99")
 TARGETS = {"policy_latency_ms_p50": Target("<=", 1.0), "policy_latency_ms_p99": Target("<=", 2.0)}
 DETOUR_KEYS = ("shield_detour_ms_p50", "shield_detour_ms_p99")
 DETOUR_GOAL_M = 20.0  # the goal this far from each pose (the suite's goals lie 8..30 m away)
 DETOUR_SEEN_M = 30.0  # half-width of the square of true ground the shield's map holds around each pose
+HAZCAM_KEYS = ("hazcam_decision_ms_p50", "hazcam_decision_ms_p99")
 MISSING_NOTE = "not measured: the deployment runtime (diana_lab.deploy, onnxruntime) is not installed"
 
 
@@ -60,8 +61,9 @@ def _p50_p99(
     ]
 
 
-def _reference_navigator(folder: Path) -> Any:
-    """Export the shipped reference policy and load it as the rover would (None when it is not shipped)."""
+def _reference_navigator(folder: Path, preset: str = "reference") -> Any:
+    """Export the shipped reference policy behind the shield of ``+experiment=<preset>`` and load it as the rover
+    would (None when it is not shipped)."""
     from diana_lab.config import compose, to_object
     from diana_lab.deploy import Navigator
     from diana_lab.deploy.export import export_policy
@@ -73,7 +75,7 @@ def _reference_navigator(folder: Path) -> Any:
 
     from diana_lab.slope_shield import ShieldSettings
 
-    cfg = compose(["+experiment=reference"])  # as it ships: behind the preset's slope shield
+    cfg = compose([f"+experiment={preset}"])  # as it ships: behind the preset's slope shield
     eval_cfg = to_object("eval", cfg.eval)
     loaded = load_policy("pretrained", cfg, eval_cfg)
     train = loaded.train_cfg
@@ -212,3 +214,79 @@ def detour_latency(ctx: BenchContext) -> list[Figure]:
         f"a run, {runs[0]['detours']} of them driven by the detour (the rest found no way and chose as usual)"
     )
     return _p50_p99(DETOUR_KEYS, runs, f"{runs[0]['n']} decisions", note, {"detours_per_run": runs[0]["detours"]})
+
+
+@measurement(*HAZCAM_KEYS)
+def hazcam_latency(ctx: BenchContext) -> list[Figure]:
+    """One onboard decision of the shipped policy behind ``+experiment=reference_hazcams``' shield: its four hazard
+    cameras' frames mapped (:meth:`Navigator.map_for_shield`, in the body frame as a rover hands them over) and
+    :meth:`Navigator.next_waypoint` (encoding, inference, the shield's checks with the relief check). The frames
+    are cast in the bench's world from its poses, each decision 0.3 m on from the last along the heading (eight
+    a pose, the map growing as on a drive); the lidar cloud is the synthetic flat-ground one of
+    ``policy_latency``. The figures are the medians over the repeats of each run's p50 and p99."""
+    if importlib.util.find_spec("diana_lab.deploy") is None or importlib.util.find_spec("onnxruntime") is None:
+        return [Figure(key, "ms", None, note=MISSING_NOTE) for key in HAZCAM_KEYS]
+    import time
+
+    from diana_lab.config import compose, to_object
+    from diana_lab.deploy.latency import synthetic_cloud
+    from diana_lab.evaluation.shield_cameras import ShieldCameras, _turned
+
+    cfg = compose(["+experiment=reference_hazcams"])
+    eval_cfg = to_object("eval", cfg.eval)
+    cameras = ShieldCameras(eval_cfg.shield.cameras, to_object("sensor", cfg.sensor), ctx.world)
+    cameras.reset(np.random.default_rng(ctx.seed))
+    with tempfile.TemporaryDirectory(prefix="diana_bench_") as folder:
+        nav = _reference_navigator(Path(folder), "reference_hazcams")
+        if nav is None:
+            return [Figure(key, "ms", None, note="not measured: no reference policy shipped") for key in HAZCAM_KEYS]
+        cloud = synthetic_cloud(nav.spec.sensor)
+        cases = []
+        for position, rpy in ctx.poses[: ctx.size(12, 4)]:
+            yaw = float(rpy[2])
+            ahead = np.array([np.cos(yaw), np.sin(yaw), 0.0])
+            steps = []
+            for k in range(8):
+                pos = np.asarray(position, dtype=np.float64) + 0.3 * k * ahead
+                frames = []
+                for camera, cam_yaw in zip(cameras.cameras, cameras.yaws, strict=True):
+                    a = np.radians(cam_yaw)
+                    turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+                    pts = camera.capture(pos, _turned(rpy, cam_yaw)).points.astype(np.float64) @ turn.T
+                    frames.append((pts, turn @ camera.mount))
+                steps.append(((pos[0], pos[1], pos[2], float(rpy[0]), float(rpy[1]), yaw), frames))
+            goal = np.asarray(position, dtype=np.float64)[:2] + 20.0 * ahead[:2]
+            cases.append((steps, goal))
+
+        def run() -> dict[str, float]:
+            times, mapping, points = [], [], []
+            for steps, goal in cases:
+                nav.reset()
+                for pose, frames in steps:
+                    t0 = time.perf_counter()
+                    for pts, mount in frames:
+                        nav.map_for_shield(pose, pts, mount)
+                    t1 = time.perf_counter()
+                    nav.next_waypoint(pose, goal, cloud)
+                    times.append(1000.0 * (time.perf_counter() - t0))
+                    mapping.append(1000.0 * (t1 - t0))
+                    points.append(sum(len(p) for p, _ in frames))
+            return {
+                "p50": float(np.percentile(times, 50)),
+                "p99": float(np.percentile(times, 99)),
+                "map_p50": float(np.percentile(mapping, 50)),
+                "n": len(times),
+                "points": float(np.median(points)),
+            }
+
+        runs = repeat(run, ctx.repeats)
+    note = (
+        f"Navigator.map_for_shield x {len(cameras)} hazard-camera frames (median {runs[0]['points']:.0f} returns a "
+        f"decision) + Navigator.next_waypoint behind the +experiment=reference_hazcams shield (relief check on), "
+        f"onnxruntime 1 thread, frames cast in the bench's world; {runs[0]['n']} decisions a run"
+    )
+    extra = {
+        "returns_per_decision": runs[0]["points"],
+        "map_for_shield_p50_ms": float(np.median([r["map_p50"] for r in runs])),
+    }
+    return _p50_p99(HAZCAM_KEYS, runs, f"{runs[0]['n']} decisions", note, extra)

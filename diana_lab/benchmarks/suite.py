@@ -38,6 +38,7 @@ ORDER = (
     "expert_label_ms",
     "policy_latency",
     "detour_latency",
+    "hazcam_latency",
     "rss_per_env",
 )
 ANCHORS = {

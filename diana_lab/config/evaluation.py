@@ -8,10 +8,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from diana_lab.config.sensing import MAX_RAYS
 from diana_lab.config.store import register
 from diana_lab.config.validation import (
     ConfigError,
     in_range,
+    length,
     non_negative,
     non_negative_int,
     one_of,
@@ -21,6 +23,39 @@ from diana_lab.config.validation import (
 )
 
 DYNAMICS_OPTIONS = ("kinematic", "physics")
+
+
+@dataclass
+class ShieldCameraConfig:
+    """A depth camera that feeds only the slope shield's map (a hazard camera; the policy never sees it). It
+    takes the env sensor's noise (``sensor.noise``, ``sensor.noise_level``). ``yaw_deg`` turns it from the
+    rover's heading (left positive); ``mount_xyz`` is its position in the rover frame turned by ``yaw_deg`` (x
+    along where it looks), so four cameras at 0, 90, 180 and -90 deg with the same ``mount_xyz`` stand round
+    the mast."""
+
+    yaw_deg: float = 0.0
+    mount_xyz: list[float] = field(default_factory=lambda: [0.2, 0.0, 1.0])
+    pitch_deg: float = 40.0  # down
+    width: int = 256
+    height: int = 192
+    hfov_deg: float = 87.0
+    vfov_deg: float = 58.0
+    max_range: float = 6.0  # m
+
+    def check(self, key: str) -> None:
+        """Raise a :class:`ConfigError` naming ``key`` (``eval.shield.cameras[i]``) for a bad value."""
+        in_range(f"{key}.yaw_deg", self.yaw_deg, -180.0, 180.0)
+        length(f"{key}.mount_xyz", self.mount_xyz, 3)
+        for i, v in enumerate(self.mount_xyz):
+            in_range(f"{key}.mount_xyz[{i}]", v, -5.0, 5.0)
+        in_range(f"{key}.pitch_deg", self.pitch_deg, -90.0, 90.0)
+        positive_int(f"{key}.width", self.width)
+        positive_int(f"{key}.height", self.height)
+        if self.width * self.height > MAX_RAYS:
+            raise ConfigError(f"{key}: expected at most {MAX_RAYS} pixels, got {self.width} x {self.height}")
+        in_range(f"{key}.hfov_deg", self.hfov_deg, 0.0, 180.0, inclusive=False)
+        in_range(f"{key}.vfov_deg", self.vfov_deg, 0.0, 180.0, inclusive=False)
+        positive(f"{key}.max_range", self.max_range)
 
 
 @dataclass
@@ -77,9 +112,38 @@ class ShieldConfig:
     detour_after: int = 0
     detour_progress: float = 0.5  # m
     detour_margin: float = 10.0  # m
+    # the relief check (diana_lab.relief): also veto a drive crossing a cell whose footprint (robot.radius + 0.1 m)
+    # on the map's mean returns is steeper than relief_slope_deg, holds a step (de-tilted, between neighbouring
+    # cells) over relief_step or is rougher than relief_roughness (RMS about its plane), judged where at least
+    # relief_min_known of the footprint's cells are known; the detour's search takes those cells as walls. The
+    # limits are the A* cost map's lethal ones for the Jackal. Worth it only with returns dense near the rover
+    # (``cameras``): from the lidar's alone it changed nothing (docs/reference_policy.md, "Hazard cameras")
+    relief: bool = False
+    relief_slope_deg: float = 22.0
+    relief_step: float = 0.08  # m
+    relief_roughness: float = 0.065  # m
+    relief_min_known: int = 8
+    # depth cameras that feed only the shield's map (ShieldCameraConfig); []: the env sensor's returns alone
+    cameras: list[ShieldCameraConfig] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         non_negative_int("eval.shield.detour_after", self.detour_after, "0: off")
+        in_range("eval.shield.relief_slope_deg", self.relief_slope_deg, 0.0, 90.0, inclusive=False)
+        positive("eval.shield.relief_step", self.relief_step)
+        positive("eval.shield.relief_roughness", self.relief_roughness)
+        if isinstance(self.relief_min_known, bool) or not isinstance(self.relief_min_known, int):
+            raise ConfigError(f"eval.shield.relief_min_known: expected an integer >= 3, got {self.relief_min_known!r}")
+        if self.relief_min_known < 3:
+            raise ConfigError(
+                f"eval.shield.relief_min_known: expected an integer >= 3 (a plane needs 3), got {self.relief_min_known}"
+            )
+        for i, camera in enumerate(self.cameras):
+            if not isinstance(camera, ShieldCameraConfig):
+                raise ConfigError(
+                    f"eval.shield.cameras[{i}]: expected a camera (yaw_deg, mount_xyz, pitch_deg, width, height, "
+                    f"hfov_deg, vfov_deg, max_range), got {camera!r}"
+                )
+            camera.check(f"eval.shield.cameras[{i}]")
         positive("eval.shield.detour_progress", self.detour_progress)
         positive("eval.shield.detour_margin", self.detour_margin)
         non_negative("eval.shield.smooth_roughness", self.smooth_roughness)

@@ -122,6 +122,27 @@ class Navigator:
         if self.shield is not None:
             self.shield.mark_hazard(point)
 
+    def map_for_shield(self, pose: PoseLike, cloud: Any, sensor_xyz: Any, drop_invalid: bool = False) -> None:
+        """Map another depth sensor's returns into the slope shield's map only (a hazard camera: the policy
+        does not see them), before the decision's :meth:`next_waypoint`, as the simulator does with
+        ``eval.shield.cameras``.
+
+        Args:
+            pose: the pose estimate the cloud was taken at (as :meth:`next_waypoint`'s).
+            cloud: ``(N, 3)`` points in the rover's body frame (x forward, y left, z up, from the base origin):
+                transform the camera's own frame first.
+            sensor_xyz: the camera's position in the rover's body frame (the shield's ``min_range`` is from it).
+            drop_invalid: ignore NaN/inf points instead of raising.
+        """
+        if self.shield is None:
+            raise ValueError("map_for_shield: this policy's sidecar has no slope shield (export it with one)")
+        mount = np.asarray(sensor_xyz, dtype=np.float64).reshape(-1)
+        if mount.shape != (3,) or not np.all(np.isfinite(mount)):
+            raise ValueError(f"map_for_shield: expected sensor_xyz a finite (x, y, z), got {sensor_xyz!r}")
+        p = Pose.of(pose)
+        pts = check_cloud(cloud, drop_invalid)
+        self.shield.observe_rover(pts, (p.x, p.y, p.z), (p.roll, p.pitch, p.yaw), mount)
+
     # ------------------------------------------------------------------ steps (public for tests and tools)
     def observation(self, pose: PoseLike, goal: Any, cloud: Any, drop_invalid: bool = False) -> dict[str, np.ndarray]:
         """The policy's observation (unbatched), built as the env builds it."""

@@ -226,7 +226,7 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return loaded
     if isinstance(loaded.policy, SB3Policy):
         try:
-            loaded.policy = ShieldedPolicy(loaded.policy, shield)
+            loaded.policy = ShieldedPolicy(loaded.policy, shield, int(getattr(eval_cfg, "seed", 0)))
         except ConfigError as exc:
             raise UserError(str(exc)) from exc
         return loaded

@@ -119,9 +119,11 @@ class ShieldedPolicy:
     ``top_k`` most probable candidates whose drive the rover's own fine height map does not call too steep.
 
     The shield's map is fed every sensor frame the env takes (``env.unwrapped.sensor.last_frame``): one per
-    reset and per step, the frame the observation was encoded from."""
+    reset and per step, the frame the observation was encoded from; and, with ``eval.shield.cameras``, a frame
+    of each hazard camera taken from the same pose (:mod:`diana_lab.evaluation.shield_cameras`), whose noise
+    draws from a generator seeded by ``seed`` and the episode's number in the suite."""
 
-    def __init__(self, policy: SB3Policy, cfg: Any) -> None:
+    def __init__(self, policy: SB3Policy, cfg: Any, seed: int = 0) -> None:
         if not policy.discrete:
             from diana_lab.config import ConfigError
 
@@ -129,8 +131,10 @@ class ShieldedPolicy:
                 "eval.shield.enabled: the slope shield picks among a discrete action space's candidates; this "
                 "policy's actions are continuous (use action_space=discrete, or eval.shield.enabled=false)"
             )
-        self.policy, self.cfg = policy, cfg
+        self.policy, self.cfg, self.seed = policy, cfg, int(seed)
         self.shield: Any = None  # built on the first reset, from the env's robot
+        self.cameras: Any = None  # the hazard cameras (ShieldCameras), built on the first reset of a world
+        self._episode = -1  # episodes reset so far, less one: the cameras' noise seed
         self._before: dict[str, int] = {}  # the shield's counters at the episode's start
 
     @property
@@ -154,6 +158,14 @@ class ShieldedPolicy:
             self.shield = SlopeShield(ShieldSettings.from_config(self.cfg, env.unwrapped.robot))
         self.shield.reset()
         self._before = self._counters()
+        self._episode += 1
+        if self.cfg.cameras:
+            base = env.unwrapped
+            if self.cameras is None or self.cameras.world is not base.world:
+                from diana_lab.evaluation.shield_cameras import ShieldCameras
+
+                self.cameras = ShieldCameras(self.cfg.cameras, base.sensor.cfg, base.world)
+            self.cameras.reset(np.random.default_rng([self.seed, self._episode]))
 
     def _counters(self) -> dict[str, int]:
         """The shield's running counters (over the suite) under their column names."""
@@ -190,6 +202,8 @@ class ShieldedPolicy:
         frame = base.sensor.last_frame
         if frame is not None:
             self.shield.observe_rover(frame.points, frame.position, frame.rpy, base.sensor.mount)
+            if self.cameras is not None:
+                self.cameras.feed(self.shield, frame.position, frame.rpy)
         last = getattr(base, "last_waypoint", None)
         if last is not None:  # where the wheels met ground they could not drive (the tilt guard, a slope)
             self.shield.mark_hazard(last.hazard_xy)
@@ -202,4 +216,4 @@ def sb3_policy(model: Any, vecnormalize: Any, eval_cfg: Any) -> SB3Policy | Shie
     """The evaluation's policy for an SB3 model: :class:`SB3Policy`, behind the slope shield when
     ``eval.shield.enabled`` (``eval_cfg`` an ``EvalConfig``)."""
     policy = SB3Policy(model, vecnormalize, deterministic=eval_cfg.deterministic, seed=eval_cfg.seed)
-    return ShieldedPolicy(policy, eval_cfg.shield) if eval_cfg.shield.enabled else policy
+    return ShieldedPolicy(policy, eval_cfg.shield, eval_cfg.seed) if eval_cfg.shield.enabled else policy

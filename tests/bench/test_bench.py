@@ -33,7 +33,7 @@ DOCUMENTED = {
     "physics_realtime_factor_husky", "physics_realtime_factor_rocker_bogie", "kinematic_waypoints_per_s",
     "env_steps_per_s_kinematic", "env_steps_per_s_physics", "vec_env_scaling_2", "train_fps_ppo",
     "policy_latency_ms_p50", "policy_latency_ms_p99", "rss_mb_per_env", "expert_label_ms",
-    "shield_detour_ms_p50", "shield_detour_ms_p99",
+    "shield_detour_ms_p50", "shield_detour_ms_p99", "hazcam_decision_ms_p50", "hazcam_decision_ms_p99",
 }  # fmt: skip
 
 
@@ -88,6 +88,17 @@ def test_the_detour_figure_times_stalled_decisions_of_the_reference_shield(tmp_p
     assert 0 < p50["value"] <= p99["value"] and p50["unit"] == "ms" and p50["batch"] == "48 decisions"
     assert "detour driving" in p50["note"] and p50["target"] is None
     assert p50["detours_per_run"] >= 40  # most of the 48 stalled decisions found a way and drove it
+
+
+def test_the_hazard_camera_figure_times_decisions_that_map_four_camera_frames(tmp_path):
+    only = "only=[hazcam_decision_ms_p50,hazcam_decision_ms_p99]"
+    cfg = compose(["quick=true", "repeats=1", f"output={tmp_path / 'b.json'}", only], "bench")
+    figures = run(cfg, command="pytest")["figures"]
+    assert set(figures) == {"hazcam_decision_ms_p50", "hazcam_decision_ms_p99"}
+    p50, p99 = figures["hazcam_decision_ms_p50"], figures["hazcam_decision_ms_p99"]
+    assert 0 < p50["value"] <= p99["value"] and p50["batch"] == "32 decisions"
+    assert "x 4 hazard-camera frames" in p50["note"] and p50["target"] is None
+    assert p50["returns_per_decision"] > 10_000 and 0 < p50["map_for_shield_p50_ms"] < p50["value"]
 
 
 def test_every_documented_key_is_registered_once():

@@ -176,3 +176,72 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
     assert nav.shield.detours == policy.shield.detours > 0  # and the detour, the same times
     assert err["encoding"] <= 1e-6
     assert err["waypoint"] <= TOLERANCE_M
+
+
+def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_simulator(tmp_path, small_world):
+    """``eval.shield.cameras`` feed the simulator's shield; on a rover the same returns, turned into the body
+    frame, go to :meth:`Navigator.map_for_shield` before each decision, and the relief check on the pooled mean
+    map vetoes the same drives."""
+    from diana_lab.evaluation.shield_cameras import ShieldCameras, _turned
+
+    overrides = [
+        "sensor=lidar3d",
+        "sensor.encoding=elevation_map",
+        "sensor.elevation_map.memory=true",
+        "sensor.elevation_map.memory_radius=20",
+        "action_space=discrete",
+    ]
+    shield = [
+        "eval.shield.enabled=true",
+        "eval.shield.radius=20",
+        "eval.shield.min_range=1.0",
+        "eval.shield.relief=true",
+        "eval.shield.relief_slope_deg=8",  # strict on this small world: many relief vetoes
+        "eval.shield.detour_after=2",
+        "eval.shield.cameras=[{yaw_deg:0,width:64,height:48},{yaw_deg:90,width:64,height:48}]",
+    ]
+    run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
+    fed: list[list[tuple[np.ndarray, np.ndarray]]] = []  # per decision: (body-frame points, mount) per camera
+    feed = ShieldCameras.feed
+
+    def recording_feed(self, shield_, position, rpy):
+        frames = []
+        for camera, yaw in zip(self.cameras, self.yaws, strict=True):
+            a = np.radians(yaw)
+            turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+            frame = camera.capture(position, _turned(rpy, yaw))
+            frames.append((frame.points.astype(np.float64) @ turn.T, turn @ camera.mount))
+        fed.append(frames)
+        feed(self, shield_, position, rpy)
+
+    ShieldCameras.feed = recording_feed
+    try:
+        policy = run.loaded.policy
+        rec = record(run.env, policy, 120, seed=2)
+        nav = Navigator.from_files(run.onnx)
+        err = {"waypoint": 0.0}
+        for pose, goal, cloud, want, start, hazard, cams in zip(
+            rec.poses, rec.goals, rec.clouds, rec.waypoints, rec.starts, rec.hazards, fed, strict=True
+        ):
+            if start:
+                nav.reset()
+            if hazard is not None:
+                nav.report_hazard(hazard)
+            for points, mount in cams:
+                nav.map_for_shield(pose, points, mount)
+            err["waypoint"] = max(err["waypoint"], float(np.max(np.abs(nav.next_waypoint(pose, goal, cloud) - want))))
+    finally:
+        ShieldCameras.feed = feed
+        run.env.close()
+    print(f"hazard-camera parity over 120 decisions: {err}; relief vetoes {policy.shield.vetoed_by['relief']}")
+    assert nav.spec.shield["relief"] is True and nav.spec.shield["relief_slope_deg"] == 8.0
+    assert nav.shield.vetoed_by == policy.shield.vetoed_by and policy.shield.vetoed_by["relief"] > 5
+    assert err["waypoint"] <= TOLERANCE_M
+    with pytest.raises(ValueError, match="sensor_xyz"):
+        nav.map_for_shield(rec.poses[0], fed[0][0][0], (0.0, 1.0))
+
+
+def test_map_for_shield_needs_a_shield_and_a_camera_position(depth_run):
+    nav = Navigator.from_files(depth_run.onnx)
+    with pytest.raises(ValueError, match="no slope shield"):
+        nav.map_for_shield((0, 0, 0, 0, 0, 0), np.zeros((3, 3)), (0.0, 0.0, 1.0))

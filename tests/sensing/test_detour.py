@@ -204,3 +204,17 @@ def test_a_gap_narrower_than_the_rover_is_no_way_through():
     ctg = s.detour.costs_to_go(s.memory, s.hazards, np.zeros(2), GOAL, ends)
     assert ctg[0] > 3.0 + 2.0  # not 3 m straight through the slot: round the end
     assert ctg[0] > ctg[1]
+
+
+def test_with_the_relief_check_its_hazards_are_walls_for_the_search():
+    """A bank of 23.5 deg up to a terrace, under the tilt check's limit: a wall only with the relief check on."""
+
+    def kerb(x, y):
+        return math.tan(math.radians(23.5)) * np.clip(y - 1.4, 0.0, 1.2)
+
+    for relief, walled in ((False, False), (True, True)):
+        s = seen(kerb, relief=relief, **DETOUR)
+        m = s.memory
+        ix, iy = (int((v - o) / m.cell_size) for v, o in zip((0.0, 2.0), m.origin))
+        free = s.detour.traversable(m, (ix - 2, iy - 2, ix + 3, iy + 3))
+        assert bool((~free).any()) == walled

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 
 from diana_lab.config import ConfigError, to_object
 from diana_lab.config.evaluation import ShieldConfig
+from diana_lab.relief import relief_hazards
 from diana_lab.slope_shield import ShieldSettings, SlopeShield
 
 ROBOT = to_object("robot", "jackal")  # wheelbase 0.262 m, track 0.376 m
@@ -536,6 +538,13 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("smooth_roughness", -0.001),
         ("smooth_obstacle_height", -0.05),
         ("smooth_radius", 0.0),
+        ("relief_slope_deg", 0.0),
+        ("relief_slope_deg", 90.0),
+        ("relief_step", 0.0),
+        ("relief_roughness", -0.01),
+        ("relief_min_known", 2),
+        ("relief_min_known", 8.5),
+        ("relief_min_known", True),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
@@ -547,3 +556,68 @@ def test_bad_settings_name_their_key(key, value):
 def test_a_smooth_ground_limit_must_lie_under_the_obstacle_height(low):
     with pytest.raises(ConfigError, match=r"eval.shield.smooth_obstacle_height: .*below eval.shield.obstacle_height"):
         ShieldConfig(obstacle_height=0.12, smooth_roughness=0.004, smooth_obstacle_height=low)
+
+
+RAMP = math.tan(math.radians(23.5))  # between the relief check's 22 deg and the tilt check's 25
+
+
+def _ramp_east(x, y):
+    return RAMP * np.clip(x - 2.0, 0.0, None)
+
+
+def test_the_relief_check_vetoes_a_drive_the_tilt_check_lets_through():
+    east, north = np.array([3.0, 0.0]), np.array([0.0, 3.0])
+    plain = seen(_ramp_east)
+    assert plain.failed_checks(np.zeros(2), east) == ()  # the tilt check alone: allowed
+    s = seen(_ramp_east, relief=True)
+    assert s.failed_checks(np.zeros(2), east) == ("relief",)
+    assert s.failed_checks(np.zeros(2), np.array([1.0, 0.0])) == ()  # stops short of it
+    assert s.failed_checks(np.zeros(2), north) == ()  # beside it
+    assert s.choose([0, 1], np.array([east, north]), np.zeros(2)) == 1
+    assert (s.vetoes, s.vetoed_by["relief"], s.vetoed_by["tilt"]) == (1, 1, 0)
+    many = np.array([east, north, [2.5, 1.0], [-3.0, 0.0]])
+    np.testing.assert_array_equal(s.relief_crosses(np.zeros(2), many), [True, False, True, False])
+
+
+def test_a_kerb_is_relief_where_the_ground_is_judged():
+    s = seen(lambda x, y: np.where(x > 2.0, 0.2, 0.0), relief=True)  # 0.2 m: a step whatever the plane
+    assert s.failed_checks(np.zeros(2), np.array([3.0, 0.0]))[:2] == ("tilt", "relief")
+
+
+def test_the_relief_check_reads_the_mean_returns_not_the_highest():
+    """Past x = 2 every cell's returns scatter 0.1 m either side of the flat ground (range noise): their mean is
+    the ground, their highest a 0.1 m kerb that is not there."""
+    flat = ground(lambda x, y: 0.0 * x)
+    far = flat[flat[:, 0] > 2.0]
+    up = np.array([0.0, 0.0, 0.1])
+    noisy = np.concatenate([flat[flat[:, 0] <= 2.0], far + up, far - up])
+    s = shield(relief=True)
+    s.observe(noisy, np.zeros(2))
+    assert not s.relief_crosses(np.zeros(2), np.array([[3.0, 0.0], [2.5, 1.0]])).any()
+    n = s.memory.n
+    on_highest = relief_hazards(s.memory.height.reshape(n, n), (0, 0, n, n), s.memory.cell_size, s.relief)
+    assert on_highest.any()  # the same check on the highest returns: a kerb
+
+
+def test_without_the_relief_check_the_map_keeps_no_mean_layer_and_nothing_crosses():
+    s = seen(_ramp_east)
+    assert s.memory.mean_height is None and s.relief is None
+    assert not s.relief_crosses(np.zeros(2), np.array([[3.0, 0.0]])).any()
+    assert not shield(relief=True).relief_crosses(np.zeros(2), np.array([[3.0, 0.0]])).any()  # no map yet
+
+
+def test_the_relief_checks_fallback_drops_it_with_the_tilt_check():
+    """Every drive crosses relief (the rover stands in a bowl of 23.5 deg the tilt check allows): the fallback
+    drives, as on ground the tilt check vetoes everywhere."""
+    s = seen(lambda x, y: RAMP * np.clip(np.hypot(x, y) - 0.8, 0.0, None), relief=True)
+    offsets = np.array([[3.0, 0.0], [0.0, 3.0], [-3.0, 0.0]])
+    assert s.relief_crosses(np.zeros(2), offsets).all()
+    assert s.choose([1, 0, 2], offsets, np.zeros(2)) == 1 and s.fallbacks == 1
+
+
+def test_a_sidecar_written_before_the_relief_check_reads_it_as_off():
+    node = dataclasses.asdict(ShieldSettings.from_config(ShieldConfig(enabled=True, relief=True), ROBOT))
+    assert node["relief"] is True
+    for key in ("relief", "relief_slope_deg", "relief_step", "relief_roughness", "relief_min_known"):
+        node.pop(key)
+    assert SlopeShield(ShieldSettings.from_dict(node)).relief is None
