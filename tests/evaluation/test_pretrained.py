@@ -247,3 +247,26 @@ def test_a_shielded_evaluation_reports_how_often_the_shield_changed_course(tmp_p
 def sum_steps(rows: list[str]) -> int:
     header = rows[0].split(",")
     return sum(int(r.split(",")[header.index("steps")]) for r in rows[1:])
+
+
+def test_the_hazard_camera_preset_evaluates_it_with_the_relief_check_and_cameras(tmp_path):
+    """``+experiment=reference_hazcams`` runs through the CLI: its cameras feed the shield's map and the relief
+    check vetoes drives the lidar-only shield lets through (two Mars-yard episodes)."""
+    runs = {}
+    for preset in ("reference", "reference_hazcams"):
+        out = tmp_path / f"{preset}.json"
+        proc = evaluate_cli(
+            tmp_path / preset,
+            "policy=pretrained",
+            f"+experiment={preset}",
+            "eval.episodes=2",
+            "eval.video=false",
+            "eval.plots=false",
+            "tracking.enabled=false",
+            f"output={out}",
+        )
+        assert proc.returncode == 0, proc.stderr
+        runs[preset] = json.loads(out.read_text())
+    assert runs["reference"]["shield_relief_veto_rate"] == 0.0
+    assert runs["reference_hazcams"]["shield_relief_veto_rate"] > 0.1
+    assert runs["reference_hazcams"]["success_rate"] == 1.0  # the suite's first two goals, reached either way
