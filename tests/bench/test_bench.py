@@ -79,23 +79,23 @@ def test_expert_label_figure_times_the_reference_recipes_expert(tmp_path):
     assert fig["note"].startswith("astar_seen on +experiment=reference")
 
 
-def test_the_detour_figure_times_stalled_decisions_of_the_reference_shield(tmp_path):
-    only = "only=[shield_detour_ms_p50,shield_detour_ms_p99]"
-    cfg = compose(["quick=true", "repeats=1", f"output={tmp_path / 'b.json'}", only], "bench")
+def quick_pair(tmp_path, p50_key: str, p99_key: str) -> tuple[dict, dict]:
+    """A quick one-repeat run of a p50 / p99 pair of figures: the two figures, and nothing else ran."""
+    cfg = compose(["quick=true", "repeats=1", f"output={tmp_path / 'b.json'}", f"only=[{p50_key},{p99_key}]"], "bench")
     figures = run(cfg, command="pytest")["figures"]
-    assert set(figures) == {"shield_detour_ms_p50", "shield_detour_ms_p99"}
-    p50, p99 = figures["shield_detour_ms_p50"], figures["shield_detour_ms_p99"]
+    assert set(figures) == {p50_key, p99_key}
+    return figures[p50_key], figures[p99_key]
+
+
+def test_the_detour_figure_times_stalled_decisions_of_the_reference_shield(tmp_path):
+    p50, p99 = quick_pair(tmp_path, "shield_detour_ms_p50", "shield_detour_ms_p99")
     assert 0 < p50["value"] <= p99["value"] and p50["unit"] == "ms" and p50["batch"] == "48 decisions"
     assert "detour driving" in p50["note"] and p50["target"] is None
     assert p50["detours_per_run"] >= 40  # most of the 48 stalled decisions found a way and drove it
 
 
 def test_the_hazard_camera_figure_times_decisions_that_map_four_camera_frames(tmp_path):
-    only = "only=[hazcam_decision_ms_p50,hazcam_decision_ms_p99]"
-    cfg = compose(["quick=true", "repeats=1", f"output={tmp_path / 'b.json'}", only], "bench")
-    figures = run(cfg, command="pytest")["figures"]
-    assert set(figures) == {"hazcam_decision_ms_p50", "hazcam_decision_ms_p99"}
-    p50, p99 = figures["hazcam_decision_ms_p50"], figures["hazcam_decision_ms_p99"]
+    p50, p99 = quick_pair(tmp_path, "hazcam_decision_ms_p50", "hazcam_decision_ms_p99")
     assert 0 < p50["value"] <= p99["value"] and p50["batch"] == "32 decisions"
     assert "x 4 hazard-camera frames" in p50["note"] and p50["target"] is None
     assert p50["returns_per_decision"] > 10_000 and 0 < p50["map_for_shield_p50_ms"] < p50["value"]

@@ -16,6 +16,14 @@ from .conftest import export_run
 from .helpers import record, run_config
 
 TOLERANCE_M = 1e-4
+# the run the shield tests export: the reference recipe's kind of policy (lidar map with memory, 96 candidates)
+SHIELDED_RUN = [
+    "sensor=lidar3d",
+    "sensor.encoding=elevation_map",
+    "sensor.elevation_map.memory=true",
+    "sensor.elevation_map.memory_radius=20",
+    "action_space=discrete",
+]
 
 
 def replay(nav: Navigator, rec) -> dict[str, float]:
@@ -129,11 +137,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
     slopes, by what rises within the footprint, by peaks, by the hazards the tilt guard reported), where it drove
     straight for the goal (its final approach) and where, stalled, it drove round what blocked it (its detour)."""
     overrides = [
-        "sensor=lidar3d",
-        "sensor.encoding=elevation_map",
-        "sensor.elevation_map.memory=true",
-        "sensor.elevation_map.memory_radius=20",
-        "action_space=discrete",
+        *SHIELDED_RUN,
         "robot.tilt_guard_deg=12",  # halts often on this small rough world: hazards for the shield
     ]
     # strict: many vetoes, by the map and by the hazards the tilt guard reports
@@ -184,13 +188,7 @@ def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_si
     map vetoes the same drives."""
     from diana_lab.evaluation.shield_cameras import ShieldCameras, _turned
 
-    overrides = [
-        "sensor=lidar3d",
-        "sensor.encoding=elevation_map",
-        "sensor.elevation_map.memory=true",
-        "sensor.elevation_map.memory_radius=20",
-        "action_space=discrete",
-    ]
+    overrides = SHIELDED_RUN
     shield = [
         "eval.shield.enabled=true",
         "eval.shield.radius=20",
