@@ -230,7 +230,7 @@ def hazcam_latency(ctx: BenchContext) -> list[Figure]:
 
     from diana_lab.config import compose, to_object
     from diana_lab.deploy.latency import synthetic_cloud
-    from diana_lab.evaluation.shield_cameras import ShieldCameras, _turned
+    from diana_lab.evaluation.shield_cameras import ShieldCameras
 
     cfg = compose(["+experiment=reference_hazcams"])
     eval_cfg = to_object("eval", cfg.eval)
@@ -248,12 +248,7 @@ def hazcam_latency(ctx: BenchContext) -> list[Figure]:
             steps = []
             for k in range(8):
                 pos = np.asarray(position, dtype=np.float64) + 0.3 * k * ahead
-                frames = []
-                for camera, cam_yaw in zip(cameras.cameras, cameras.yaws, strict=True):
-                    a = np.radians(cam_yaw)
-                    turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-                    pts = camera.capture(pos, _turned(rpy, cam_yaw)).points.astype(np.float64) @ turn.T
-                    frames.append((pts, turn @ camera.mount))
+                frames = cameras.body_frames(pos, rpy)
                 steps.append(((pos[0], pos[1], pos[2], float(rpy[0]), float(rpy[1]), yaw), frames))
             goal = np.asarray(position, dtype=np.float64)[:2] + 20.0 * ahead[:2]
             cases.append((steps, goal))

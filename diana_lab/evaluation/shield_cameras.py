@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ShieldCameras"]
+__all__ = ["ShieldCameras", "turned_attitude"]
 
 
-def _turned(rpy: np.ndarray, yaw_deg: float) -> np.ndarray:
+def turned_attitude(rpy: np.ndarray, yaw_deg: float) -> np.ndarray:
     """The roll, pitch, yaw (ZYX) of a body with attitude ``rpy`` turned by ``yaw_deg`` about its own z axis."""
     from diana_lab.rotations import rpy_matrix
 
@@ -77,9 +77,20 @@ class ShieldCameras:
         for camera in self.cameras:
             camera.reset(rng)
 
+    def body_frames(self, position: np.ndarray, rpy: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Every camera's returns from the rover pose in the rover's body frame, with the camera's position in it:
+        ``[(points (N, 3) float64, sensor_xyz (3,))]``, what a rover hands :meth:`Navigator.map_for_shield`."""
+        frames = []
+        for camera, yaw in zip(self.cameras, self.yaws, strict=True):
+            a = math.radians(yaw)
+            turn = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+            points = camera.capture(position, turned_attitude(rpy, yaw)).points.astype(np.float64)
+            frames.append((points @ turn.T, turn @ camera.mount))
+        return frames
+
     def feed(self, shield: Any, position: np.ndarray, rpy: np.ndarray) -> None:
         """Cast every camera from the rover pose ``position``, ``rpy`` and map its returns into ``shield``."""
         for camera, yaw in zip(self.cameras, self.yaws, strict=True):
-            pose = _turned(rpy, yaw)
+            pose = turned_attitude(rpy, yaw)
             frame = camera.capture(position, pose)
             shield.observe_rover(frame.points, frame.position, pose, camera.mount)

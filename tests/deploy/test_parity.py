@@ -186,7 +186,7 @@ def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_si
     """``eval.shield.cameras`` feed the simulator's shield; on a rover the same returns, turned into the body
     frame, go to :meth:`Navigator.map_for_shield` before each decision, and the relief check on the pooled mean
     map vetoes the same drives."""
-    from diana_lab.evaluation.shield_cameras import ShieldCameras, _turned
+    from diana_lab.evaluation.shield_cameras import ShieldCameras
 
     overrides = SHIELDED_RUN
     shield = [
@@ -203,13 +203,7 @@ def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_si
     feed = ShieldCameras.feed
 
     def recording_feed(self, shield_, position, rpy):
-        frames = []
-        for camera, yaw in zip(self.cameras, self.yaws, strict=True):
-            a = np.radians(yaw)
-            turn = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
-            frame = camera.capture(position, _turned(rpy, yaw))
-            frames.append((frame.points.astype(np.float64) @ turn.T, turn @ camera.mount))
-        fed.append(frames)
+        fed.append(self.body_frames(position, rpy))  # the same casts again (noise-free): what a rover hands over
         feed(self, shield_, position, rpy)
 
     ShieldCameras.feed = recording_feed

@@ -9,7 +9,7 @@ import pytest
 
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.config.evaluation import ShieldCameraConfig, ShieldConfig
-from diana_lab.evaluation.shield_cameras import ShieldCameras, _turned
+from diana_lab.evaluation.shield_cameras import ShieldCameras, turned_attitude
 from diana_lab.rotations import rpy_matrix
 from diana_lab.slope_shield import ShieldSettings, SlopeShield
 
@@ -30,7 +30,7 @@ def test_a_turned_camera_is_the_body_turned_about_its_own_up_axis(yaw):
     rpy = np.array([0.2, -0.3, 1.1])
     a = math.radians(yaw)
     turn = np.array([[math.cos(a), -math.sin(a), 0], [math.sin(a), math.cos(a), 0], [0, 0, 1]])
-    np.testing.assert_allclose(rpy_matrix(_turned(rpy, yaw)), rpy_matrix(rpy) @ turn, atol=1e-12)
+    np.testing.assert_allclose(rpy_matrix(turned_attitude(rpy, yaw)), rpy_matrix(rpy) @ turn, atol=1e-12)
 
 
 def known_quadrants(s: SlopeShield) -> dict[str, int]:
@@ -98,3 +98,15 @@ def test_the_hazard_camera_preset_composes_the_reference_with_four_cameras_and_t
     assert ev.shield.enabled and ev.shield.relief and ev.shield.detour_after == 2
     assert sorted(c.yaw_deg for c in ev.shield.cameras) == [-90.0, 0.0, 90.0, 180.0]
     assert ev.shield.limit_deg == to_object("eval", compose(["+experiment=reference"]).eval).shield.limit_deg
+
+
+def test_body_frames_give_each_cameras_returns_where_it_looks_in_the_rover_frame(flat_world_small):
+    cams = ShieldCameras(RING, sensor_cfg(), flat_world_small)
+    frames = cams.body_frames(np.array([0.0, 0.0, 0.098]), np.zeros(3))
+    (front, front_mount), (left, left_mount), (back, _), (right, right_mount) = frames
+    np.testing.assert_allclose(front_mount, [0.2, 0.0, 1.0], atol=1e-12)
+    np.testing.assert_allclose(left_mount, [0.0, 0.2, 1.0], atol=1e-12)
+    np.testing.assert_allclose(right_mount, [0.0, -0.2, 1.0], atol=1e-12)
+    assert np.median(front[:, 0]) > 1.0 and np.median(back[:, 0]) < -1.0
+    assert np.median(left[:, 1]) > 1.0 and np.median(right[:, 1]) < -1.0
+    np.testing.assert_allclose(np.concatenate([f for f, _ in frames])[:, 2], -0.098, atol=1e-3)  # the ground
