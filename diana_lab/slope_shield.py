@@ -323,7 +323,8 @@ class SlopeShield:
         """Whether each straight drive in ``offsets`` ``(K, 2)`` from ``start_xy`` crosses a cell the relief check
         calls a hazard (:mod:`diana_lab.relief`, on the map's mean layer), ``(K,)`` bool; all False with the check
         off. Judged at :data:`RELIEF_SAMPLES` points from 5 % of the way to its end (the rover's own cell is
-        where it stands: a hazard there would veto every drive), on one grid round the rover per decision."""
+        where it stands: a hazard there would veto every drive), on one grid round the rover per decision (kept
+        until the map changes or the rover moves, and widened only when a longer drive needs it)."""
         offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
         if self.relief is None or self.memory.origin is None or len(offsets) == 0:
             return np.zeros(len(offsets), dtype=bool)
@@ -331,7 +332,10 @@ class SlopeShield:
         mem, c = self.memory, self.memory.cell_size
         reach = float(np.sqrt((offsets * offsets).sum(axis=1)).max()) + c
         cached = self._relief_at
-        if cached is None or cached[:3] != (start[0], start[1], reach):
+        same_start = cached is not None and cached[:2] == (start[0], start[1])
+        if not same_start or cached[2] < reach:  # one grid a decision, grown only for a longer drive
+            if same_start:
+                reach = max(reach, cached[2])
             lo = np.floor((start - reach - mem.origin) / c).astype(int)
             hi = np.ceil((start + reach - mem.origin) / c).astype(int)
             ix0, iy0 = max(0, int(lo[0])), max(0, int(lo[1]))
