@@ -11,7 +11,10 @@ id of a training run (see :mod:`diana_lab.evaluation.loading`)::
     python -m diana_lab.evaluate policy=model.zip eval.sensor_noise=[0,0.5,1,2]
 
 * ``eval.dynamics`` null means the training's dynamics: the run's own when the policy comes with its
-  training config (a run id, or a model with ``.hydra/config.yaml`` beside it), else the ``dynamics`` group.
+  training config (a run id, ``pretrained``, or a model with ``.hydra/config.yaml`` beside it), else the
+  ``dynamics`` group. A ``dynamics=`` group chosen on the command line counts as ``eval.dynamics`` (it
+  would otherwise be replaced by the training's without a word): ``policy=pretrained dynamics=physics``
+  evaluates in physics, with any ``dynamics.<key>=`` settings; ``eval.dynamics`` naming another one is an error.
 * ``eval.sensor_noise=[...]`` evaluates once per level in ``noise_<level>/`` with ``sensor.noise_level`` set
   to it; a sensor configured without noise (``sensor.noise=none``) takes the ``realistic`` preset for the
   sweep. ``output`` then holds ``{"sensor_noise": {"<level>": summary, ...}}``.
@@ -31,7 +34,25 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from diana_lab.cli import UserError, hydra_app, output_file
 
-__all__ = ["env_config", "main", "run"]
+__all__ = ["chosen_dynamics", "env_config", "main", "run"]
+
+
+def chosen_dynamics(cfg: DictConfig, overrides: list[str]) -> None:
+    """Let a ``dynamics=<name>`` among the command line's ``overrides`` set ``eval.dynamics`` (in place): with
+    ``eval.dynamics`` null the training's dynamics would replace it silently. Both set and different: an error."""
+    chosen = [o for o in overrides if o.lstrip("+~").split("=", 1)[0] == "dynamics" and "=" in o]
+    if not chosen:
+        return
+    name = str(cfg.dynamics.get("name"))
+    if cfg.eval.get("dynamics") is None:
+        with open_dict(cfg):
+            cfg.eval.dynamics = name
+    elif cfg.eval.dynamics != name:
+        raise UserError(
+            f"{chosen[-1]} and eval.dynamics={cfg.eval.dynamics}: expected one dynamics to evaluate in; "
+            f"give either (eval.dynamics={cfg.eval.dynamics} takes conf/dynamics/{cfg.eval.dynamics}.yaml as it is, "
+            f"dynamics={cfg.eval.dynamics} dynamics.<key>=... changes its settings)"
+        )
 
 
 def env_config(cfg: DictConfig, eval_dynamics: str | None, train_cfg: DictConfig | None) -> DictConfig:
@@ -127,7 +148,9 @@ def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
 def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
-    run(cfg, Path(HydraConfig.get().runtime.output_dir))
+    hydra_cfg = HydraConfig.get()
+    chosen_dynamics(cfg, list(hydra_cfg.overrides.task))
+    run(cfg, Path(hydra_cfg.runtime.output_dir))
 
 
 if __name__ == "__main__":

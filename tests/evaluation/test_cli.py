@@ -75,3 +75,33 @@ def test_a_missing_model_file_exits_2_naming_the_path(tmp_path):
     assert proc.returncode == 2
     assert "no/such/model.zip" in proc.stderr and "Traceback" not in proc.stderr
     assert proc.stderr.startswith("error: ")
+
+
+def test_a_dynamics_group_chosen_on_the_command_line_is_not_replaced_by_the_trainings():
+    """``policy=pretrained dynamics=physics``: the shipped policy was trained kinematic, and with ``eval.dynamics``
+    null the training's dynamics used to win without a word; the group chosen counts as ``eval.dynamics``, and
+    keeps its own settings."""
+    from diana_lab.config import compose
+    from diana_lab.evaluate import chosen_dynamics, env_config
+
+    trained = compose(["+experiment=reference"])
+    assert trained.dynamics.name == "kinematic"
+    overrides = ["policy=pretrained", "+experiment=reference", "dynamics=physics", "dynamics.time_step=0.01"]
+    cfg = compose(overrides[1:])
+    chosen_dynamics(cfg, overrides)
+    assert cfg.eval.dynamics == "physics"
+    env_cfg = env_config(cfg, cfg.eval.dynamics, trained)
+    assert env_cfg.dynamics.name == "physics" and env_cfg.dynamics.time_step == 0.01
+    # without the choice on the command line the training's dynamics stands, as documented
+    plain = compose(["+experiment=reference"])
+    chosen_dynamics(plain, ["policy=pretrained", "+experiment=reference", "eval.episodes=3"])
+    assert plain.eval.dynamics is None
+    physics_trained = compose(["+experiment=reference", "dynamics=physics"])
+    assert env_config(plain, None, physics_trained).dynamics.name == "physics"
+
+
+def test_a_dynamics_group_and_an_eval_dynamics_that_disagree_exit_2_naming_both(tmp_path):
+    proc = evaluate_cli(tmp_path / "run", "policy=straight", *TINY, "dynamics=physics", "eval.dynamics=kinematic")
+    assert proc.returncode == 2, proc.stderr
+    assert "dynamics=physics" in proc.stderr and "eval.dynamics=kinematic" in proc.stderr
+    assert "Traceback" not in proc.stderr
