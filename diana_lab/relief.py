@@ -15,7 +15,8 @@ cells of the footprint centred on it (the cells within ``footprint_radius``, 13 
 
 A cell is judged only when its own height and at least ``min_known`` of its footprint's cells are known: next
 to unseen ground there is no footprint to fit. Unjudged cells are not hazards (as unseen ground passes the tilt
-check). The map should hold each cell's *mean* return (``HeightMemory(mean=True)``): a dense sensor puts many
+check); :func:`relief_judgement` also says which cells were judged, for a shield that keeps off unjudged ground
+too. The map should hold each cell's *mean* return (``HeightMemory(mean=True)``): a dense sensor puts many
 returns in a cell, whose highest stands above the ground on any slope and reads as steps and roughness
 (probes of 2026-11-24: with the highest return the Mars yard validation suite fell to 0.82, with the mean 0.95).
 
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["ReliefLimits", "footprint_cells", "relief_hazards"]
+__all__ = ["ReliefLimits", "footprint_cells", "relief_hazards", "relief_judgement"]
 
 # neighbouring-cell directions the step is measured along (each pair once): right, up, and both diagonals
 _STEP_DIRECTIONS = ((0, 1), (1, 0), (1, 1), (1, -1))
@@ -73,7 +74,15 @@ def relief_hazards(
     grid: np.ndarray, box: tuple[int, int, int, int], cell_size: float, limits: ReliefLimits
 ) -> np.ndarray:
     """Whether each cell of ``grid`` (``(N, M)`` heights in m, NaN unknown, indexed ``[iy, ix]``) inside ``box``
-    (``ix0, iy0, ix1, iy1``, end-exclusive) is a relief hazard, ``(iy1 - iy0, ix1 - ix0)`` bool.
+    (``ix0, iy0, ix1, iy1``, end-exclusive) is a relief hazard, ``(iy1 - iy0, ix1 - ix0)`` bool."""
+    return relief_judgement(grid, box, cell_size, limits)[0]
+
+
+def relief_judgement(
+    grid: np.ndarray, box: tuple[int, int, int, int], cell_size: float, limits: ReliefLimits
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`relief_hazards` and whether each cell was judged at all (its own height and ``min_known`` of its
+    footprint's cells known), both ``(iy1 - iy0, ix1 - ix0)`` bool.
 
     All cells at once: one shifted view of the (padded) grid per footprint cell, and the plane fit's sums over
     them. Heights are taken relative to the centre cell, so that float32 maps of high ground keep their
@@ -81,7 +90,8 @@ def relief_hazards(
     ix0, iy0, ix1, iy1 = box
     ny, nx = iy1 - iy0, ix1 - ix0
     if ny <= 0 or nx <= 0:
-        return np.zeros((max(ny, 0), max(nx, 0)), dtype=bool)
+        empty = np.zeros((max(ny, 0), max(nx, 0)), dtype=bool)
+        return empty, empty.copy()
     offsets = footprint_cells(cell_size, limits.footprint_radius)
     k = max(max(abs(dy), abs(dx)) for dy, dx in offsets)
     rows, cols = grid.shape
@@ -133,4 +143,4 @@ def relief_hazards(
                 jump = np.abs(heights[(dy + ddy, dx + ddx)] - heights[(dy, dx)] - rise)
                 step = np.fmax(step, jump)  # fmax: an unknown pair (NaN) leaves the step as it was
     hazard |= step > limits.step
-    return hazard & judged
+    return hazard & judged, judged

@@ -68,10 +68,13 @@ approach and before the policy's own choice (:mod:`diana_lab.detour`, which says
 
 Relief (``relief``): a drive is also vetoed where it crosses a cell whose footprint, on the map's mean returns
 (``HeightMemory(mean=True)``), is too steep, stepped or rough (:mod:`diana_lab.relief`, which says why and how);
-the detour's search takes those cells as walls, and the fallback drops the check with the tilt check. It pays
-off with returns dense round the rover, such as hazard cameras' (``eval.shield.cameras``): with them, physics
-validation suites 0.54 / 0.54 / 0.61 -> 0.78 / 0.87 / 0.78, the yard's 0.97 / 0.95 / 0.95 -> 0.99 / 0.99 / 0.97
-(``+experiment=reference_hazcams``; docs/reference_policy.md, "Hazard cameras").
+the detour's search takes those cells as walls, and the fallback drops the check with the tilt check. With
+``relief_unseen_from`` it also vetoes a drive that, beyond that distance along it, crosses a cell the check cannot
+judge: with dense returns round the rover, that is ground hidden behind a crest or below a drop, where the
+physics rover rolled. It pays off with returns dense round the rover, such as hazard cameras'
+(``eval.shield.cameras``): with them, physics validation suites 0.54 / 0.54 / 0.61 -> 0.84 / 0.93 / 0.80, the
+yard's 0.97 / 0.95 / 0.95 -> 0.99 / 0.99 / 0.95 (``+experiment=reference_hazcams``; docs/reference_policy.md,
+"Hazard cameras").
 """
 
 from __future__ import annotations
@@ -85,7 +88,7 @@ import numpy as np
 
 from diana_lab.detour import Detour
 from diana_lab.height_memory import HeightMemory
-from diana_lab.relief import ReliefLimits, relief_hazards
+from diana_lab.relief import ReliefLimits, relief_judgement
 from diana_lab.rotations import leveling_matrix
 
 if TYPE_CHECKING:  # numpy only at run time: the onboard runtime imports this module without Hydra
@@ -149,6 +152,7 @@ class ShieldSettings:
     relief_step: float = 0.08  # m: a de-tilted step between neighbouring footprint cells over this is one
     relief_roughness: float = 0.065  # m RMS about the footprint plane over this is one
     relief_min_known: int = 8  # footprint cells that must be known for a cell to be judged
+    relief_unseen_from: float = 0.0  # m along a drive beyond which a cell the check cannot judge vetoes it; 0: off
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -181,6 +185,7 @@ class ShieldSettings:
             float(cfg.relief_step),
             float(cfg.relief_roughness),
             int(cfg.relief_min_known),
+            float(cfg.relief_unseen_from),
         )
 
     @classmethod
@@ -251,6 +256,10 @@ class SlopeShield:
                 )
             except ValueError as exc:
                 raise ValueError(f"SlopeShield: the relief check's settings: {exc}") from exc
+        if not settings.relief_unseen_from >= 0:
+            raise ValueError(
+                f"SlopeShield: expected relief_unseen_from >= 0 m (0: off), got {settings.relief_unseen_from}"
+            )
         self.detour = (
             Detour(
                 settings.detour_after,
@@ -274,7 +283,8 @@ class SlopeShield:
         self.cfg = settings
         self._footprint_checks = settings.obstacle_height > 0 or settings.peak_height > 0
         self.memory = HeightMemory(settings.cell_size, settings.radius, 1, 1, 0.0, 0.0, mean=settings.relief)
-        self._relief_at: tuple[float, float, float, int, int, np.ndarray] | None = None  # since the map changed
+        # (x, y, reach, ix0, iy0, hazard, judged) of the relief grid round the rover, since the map last changed
+        self._relief_at: tuple[float, float, float, int, int, np.ndarray, np.ndarray] | None = None
         self._samples: dict[float, np.ndarray] = {}  # distances along a drive, per drive length
         self.half_base, self.half_track = settings.half_base, settings.half_track
         self.decisions = 0  # calls of choose() since construction
@@ -321,16 +331,19 @@ class SlopeShield:
 
     def relief_crosses(self, start_xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Whether each straight drive in ``offsets`` ``(K, 2)`` from ``start_xy`` crosses a cell the relief check
-        calls a hazard (:mod:`diana_lab.relief`, on the map's mean layer), ``(K,)`` bool; all False with the check
-        off. Judged at :data:`RELIEF_SAMPLES` points from 5 % of the way to its end (the rover's own cell is
-        where it stands: a hazard there would veto every drive), on one grid round the rover per decision (kept
-        until the map changes or the rover moves, and widened only when a longer drive needs it)."""
+        calls a hazard (:mod:`diana_lab.relief`, on the map's mean layer), or, with ``relief_unseen_from`` > 0, a
+        cell it cannot judge (unseen ground, or too little of its footprint seen) more than that far along it,
+        ``(K,)`` bool; all False with the check off. Judged at :data:`RELIEF_SAMPLES` points from 5 % of the way
+        to its end (the rover's own cell is where it stands: a hazard there would veto every drive), on one grid
+        round the rover per decision (kept until the map changes or the rover moves, and widened only when a
+        longer drive needs it); ground beyond the map is unjudged."""
         offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
         if self.relief is None or self.memory.origin is None or len(offsets) == 0:
             return np.zeros(len(offsets), dtype=bool)
         start = np.asarray(start_xy, dtype=np.float64)[:2]
         mem, c = self.memory, self.memory.cell_size
-        reach = float(np.sqrt((offsets * offsets).sum(axis=1)).max()) + c
+        lengths = np.sqrt((offsets * offsets).sum(axis=1))
+        reach = float(lengths.max()) + c
         cached = self._relief_at
         same_start = cached is not None and cached[:2] == (start[0], start[1])
         if not same_start or cached[2] < reach:  # one grid a decision, grown only for a longer drive
@@ -341,17 +354,27 @@ class SlopeShield:
             ix0, iy0 = max(0, int(lo[0])), max(0, int(lo[1]))
             ix1, iy1 = min(mem.n, int(hi[0])), min(mem.n, int(hi[1]))
             assert mem.mean_height is not None  # built with mean=True whenever the relief check is on
-            grid = relief_hazards(mem.mean_height.reshape(mem.n, mem.n), (ix0, iy0, ix1, iy1), c, self.relief)
-            cached = self._relief_at = (start[0], start[1], reach, ix0, iy0, grid)
-        ix0, iy0, grid = cached[3], cached[4], cached[5]
+            hazard, judged = relief_judgement(
+                mem.mean_height.reshape(mem.n, mem.n), (ix0, iy0, ix1, iy1), c, self.relief
+            )
+            cached = self._relief_at = (start[0], start[1], reach, ix0, iy0, hazard, judged)
+        ix0, iy0, hazard, judged = cached[3], cached[4], cached[5], cached[6]
         points = start + RELIEF_ALONG[None, :, None] * offsets[:, None, :]  # (K, S, 2)
         fx = np.floor((points[..., 0] - mem.origin[0]) / c).astype(np.int64) - ix0
         fy = np.floor((points[..., 1] - mem.origin[1]) / c).astype(np.int64) - iy0
-        ny, nx = grid.shape
-        if grid.size == 0:
-            return np.zeros(len(offsets), dtype=bool)
+        ny, nx = hazard.shape
         inside = (fx >= 0) & (fx < nx) & (fy >= 0) & (fy < ny)
-        return (inside & grid[np.clip(fy, 0, ny - 1), np.clip(fx, 0, nx - 1)]).any(axis=1)
+        if hazard.size == 0:
+            cells_hazard, cells_judged = np.zeros(fx.shape, dtype=bool), np.zeros(fx.shape, dtype=bool)
+        else:
+            at = (np.clip(fy, 0, ny - 1), np.clip(fx, 0, nx - 1))
+            cells_hazard, cells_judged = inside & hazard[at], inside & judged[at]
+        crosses = cells_hazard.any(axis=1)
+        unseen_from = self.cfg.relief_unseen_from
+        if unseen_from > 0:
+            beyond = RELIEF_ALONG[None, :] * lengths[:, None] >= unseen_from
+            crosses |= (beyond & ~cells_judged).any(axis=1)
+        return crosses
 
     def observe(self, points_world: np.ndarray, rover_xy: np.ndarray) -> None:
         """Fuse one frame's returns, ``(N, 3)`` in the world frame; ``rover_xy`` centres the map on an

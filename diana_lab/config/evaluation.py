@@ -123,6 +123,10 @@ class ShieldConfig:
     relief_step: float = 0.08  # m
     relief_roughness: float = 0.065  # m
     relief_min_known: int = 8
+    # m: with the relief check on, also veto a drive that, more than this far along it, crosses a cell the check
+    # cannot judge (unseen, or too little of its footprint seen): with the cameras' dense map that is ground hidden
+    # behind a crest or down a slope, where the physics rover rolled; 0: off
+    relief_unseen_from: float = 0.0
     # depth cameras that feed only the shield's map (ShieldCameraConfig); []: the env sensor's returns alone
     cameras: list[ShieldCameraConfig] = field(default_factory=list)
 
@@ -131,6 +135,7 @@ class ShieldConfig:
         in_range("eval.shield.relief_slope_deg", self.relief_slope_deg, 0.0, 90.0, inclusive=False)
         positive("eval.shield.relief_step", self.relief_step)
         positive("eval.shield.relief_roughness", self.relief_roughness)
+        non_negative("eval.shield.relief_unseen_from", self.relief_unseen_from)
         if isinstance(self.relief_min_known, bool) or not isinstance(self.relief_min_known, int):
             raise ConfigError(f"eval.shield.relief_min_known: expected an integer >= 3, got {self.relief_min_known!r}")
         if self.relief_min_known < 3:

@@ -185,7 +185,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
 def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_simulator(tmp_path, small_world):
     """``eval.shield.cameras`` feed the simulator's shield; on a rover the same returns, turned into the body
     frame, go to :meth:`Navigator.map_for_shield` before each decision, and the relief check on the pooled mean
-    map vetoes the same drives."""
+    map (and the unseen ground past ``relief_unseen_from``) vetoes the same drives."""
     from diana_lab.evaluation.shield_cameras import ShieldCameras
 
     overrides = SHIELDED_RUN
@@ -195,6 +195,7 @@ def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_si
         "eval.shield.min_range=1.0",
         "eval.shield.relief=true",
         "eval.shield.relief_slope_deg=8",  # strict on this small world: many relief vetoes
+        "eval.shield.relief_unseen_from=0.8",
         "eval.shield.detour_after=2",
         "eval.shield.cameras=[{yaw_deg:0,width:64,height:48},{yaw_deg:90,width:64,height:48}]",
     ]
@@ -227,6 +228,7 @@ def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_si
         run.env.close()
     print(f"hazard-camera parity over 120 decisions: {err}; relief vetoes {policy.shield.vetoed_by['relief']}")
     assert nav.spec.shield["relief"] is True and nav.spec.shield["relief_slope_deg"] == 8.0
+    assert nav.spec.shield["relief_unseen_from"] == 0.8
     assert nav.shield.vetoed_by == policy.shield.vetoed_by and policy.shield.vetoed_by["relief"] > 5
     assert err["waypoint"] <= TOLERANCE_M
     with pytest.raises(ValueError, match="sensor_xyz"):

@@ -86,6 +86,7 @@ def test_the_cameras_take_the_sensors_noise_and_draw_it_from_the_generator_they_
         ("eval.shield.cameras=[{max_range:-1}]", r"eval.shield.cameras\[0\].max_range"),
         ("eval.shield.cameras=[{width:4000,height:4000}]", r"eval.shield.cameras\[0\]: expected at most"),
         ("eval.shield.relief_min_known=2", "eval.shield.relief_min_known"),
+        ("eval.shield.relief_unseen_from=-0.5", "eval.shield.relief_unseen_from"),
     ],
 )
 def test_bad_camera_and_relief_settings_name_their_key(override, key):
@@ -96,6 +97,7 @@ def test_bad_camera_and_relief_settings_name_their_key(override, key):
 def test_the_hazard_camera_preset_composes_the_reference_with_four_cameras_and_the_relief_check():
     ev = to_object("eval", compose(["+experiment=reference_hazcams"]).eval)
     assert ev.shield.enabled and ev.shield.relief and ev.shield.detour_after == 2
+    assert (ev.shield.relief_unseen_from, ev.shield.relief_min_known) == (0.8, 11)
     assert sorted(c.yaw_deg for c in ev.shield.cameras) == [-90.0, 0.0, 90.0, 180.0]
     assert ev.shield.limit_deg == to_object("eval", compose(["+experiment=reference"]).eval).shield.limit_deg
 

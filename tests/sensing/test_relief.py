@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from diana_lab.height_memory import HeightMemory
-from diana_lab.relief import ReliefLimits, footprint_cells, relief_hazards
+from diana_lab.relief import ReliefLimits, footprint_cells, relief_hazards, relief_judgement
 
 CELL = 0.2
 LIMITS = ReliefLimits(slope_deg=22.0, step=0.08, roughness=0.065, footprint_radius=0.433, min_known=8)
@@ -66,6 +66,22 @@ def test_unknown_ground_and_thin_footprints_are_not_judged():
     assert not hazards(grid)[:, 18:22].any()  # unknown cells are never hazards
     assert not hazards(sparse).any()  # fewer than 8 known in every footprint
     assert hazards(sparse, ReliefLimits(22.0, 0.08, 0.065, 0.433, min_known=5)).any()
+
+
+def test_the_judgement_says_which_cells_were_judged():
+    grid = np.where(X > 4.0, 0.3, 0.0)
+    grid[:, 25:] = np.nan  # unseen past x = 5 m
+    grid[10, 5] = np.nan  # one unseen cell amid seen ground
+    hazard, judged = relief_judgement(grid, (0, 0, N, N), CELL, LIMITS)
+    np.testing.assert_array_equal(hazard, hazards(grid))
+    assert not judged[:, 25:].any()  # no height of its own
+    assert judged[3:-3, 3:22].sum() == judged[3:-3, 3:22].size - 1  # all seen ground but the one hole
+    assert not judged[10, 5]
+    assert judged[3:-3, 24].all()  # the last seen column: 9 of its 13 footprint cells known
+    stricter = ReliefLimits(22.0, 0.08, 0.065, 0.433, min_known=10)
+    _, judged_10 = relief_judgement(grid, (0, 0, N, N), CELL, stricter)
+    assert judged_10[3:-3, 23].all() and not judged_10[:, 24].any()  # 12 known, then 9 < 10
+    assert not (hazard & ~judged).any()
 
 
 def test_a_box_reaching_off_the_grid_gives_its_own_shape_and_agrees_inside():

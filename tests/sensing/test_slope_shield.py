@@ -545,6 +545,7 @@ def test_without_a_hazard_radius_hazards_are_not_kept():
         ("relief_min_known", 2),
         ("relief_min_known", 8.5),
         ("relief_min_known", True),
+        ("relief_unseen_from", -0.5),
     ],
 )
 def test_bad_settings_name_their_key(key, value):
@@ -615,9 +616,47 @@ def test_the_relief_checks_fallback_drops_it_with_the_tilt_check():
     assert s.choose([1, 0, 2], offsets, np.zeros(2)) == 1 and s.fallbacks == 1
 
 
+def _flat(x, y):
+    return 0.0 * x
+
+
+def test_ground_the_relief_check_cannot_judge_vetoes_a_drive_only_beyond_relief_unseen_from():
+    """Flat ground seen out to 2 m, with a 0.4 m hole at (1, 1): with ``relief_unseen_from`` 1.5 m the drive
+    out past the seen ground is vetoed, the one across the nearby hole is not."""
+    points = ground(_flat, half=2.0)
+    points = points[np.hypot(points[:, 0] - 1.0, points[:, 1] - 1.0) > 0.4]
+    drives = np.array([[3.0, 0.0], [1.5, 0.0], [1.0, 1.0], [0.0, 3.0], [0.0, 1.8]])
+    for unseen_from, vetoed in ((1.5, [True, False, False, True, False]), (0.0, [False] * 5), (3.5, [False] * 5)):
+        s = shield(relief=True, relief_unseen_from=unseen_from)
+        s.observe(points, np.zeros(2))
+        np.testing.assert_array_equal(s.relief_crosses(np.zeros(2), drives), vetoed, err_msg=f"{unseen_from}")
+    s = shield(relief=True, relief_unseen_from=1.5)
+    s.observe(points, np.zeros(2))
+    assert s.choose([0, 1], drives, np.zeros(2)) == 1 and s.vetoed_by["relief"] == 1
+    nearer = shield(relief=True, relief_unseen_from=1.0)  # the hole lies 1.0..1.8 m along the diagonal
+    nearer.observe(points, np.zeros(2))
+    assert nearer.relief_crosses(np.zeros(2), np.array([[1.0, 1.0], [0.5, 0.5]])).tolist() == [True, False]
+
+
+def test_ground_beyond_the_map_is_unjudged():
+    s = shield(relief=True, relief_unseen_from=1.0, radius=3.0)
+    s.observe(ground(_flat, half=8.0), np.zeros(2))
+    assert s.relief_crosses(np.array([2.0, 0.0]), np.array([[-3.0, 0.0], [3.0, 0.0]])).tolist() == [False, True]
+
+
 def test_a_sidecar_written_before_the_relief_check_reads_it_as_off():
     node = dataclasses.asdict(ShieldSettings.from_config(ShieldConfig(enabled=True, relief=True), ROBOT))
     assert node["relief"] is True
     for key in ("relief", "relief_slope_deg", "relief_step", "relief_roughness", "relief_min_known"):
         node.pop(key)
     assert SlopeShield(ShieldSettings.from_dict(node)).relief is None
+
+
+def test_a_sidecar_written_before_the_unseen_veto_reads_it_as_off():
+    node = dataclasses.asdict(ShieldSettings.from_config(ShieldConfig(relief=True, relief_unseen_from=0.8), ROBOT))
+    assert node["relief_unseen_from"] == 0.8
+    node.pop("relief_unseen_from")
+    s = SlopeShield(ShieldSettings.from_dict(node))
+    assert s.relief is not None and s.cfg.relief_unseen_from == 0.0
+    with pytest.raises(ValueError, match="relief_unseen_from"):
+        SlopeShield(ShieldSettings.from_dict({**node, "relief_unseen_from": -1.0}))
