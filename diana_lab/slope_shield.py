@@ -72,8 +72,8 @@ the detour's search takes those cells as walls, and the fallback drops the check
 ``relief_unseen_from`` it also vetoes a drive that, beyond that distance along it, crosses a cell the check cannot
 judge: with dense returns round the rover, that is ground hidden behind a crest or below a drop, where the
 physics rover rolled. It pays off with returns dense round the rover, such as hazard cameras'
-(``eval.shield.cameras``): with them, physics validation suites 0.54 / 0.54 / 0.61 -> 0.84 / 0.93 / 0.80, the
-yard's 0.97 / 0.95 / 0.95 -> 0.99 / 0.99 / 0.95 (``+experiment=reference_hazcams``; docs/reference_policy.md,
+(``eval.shield.cameras``): with them, physics validation suites 0.54 / 0.54 / 0.61 -> 0.87 / 0.89 / 0.80, the
+yard's 0.97 / 0.95 / 0.95 -> 1.00 / 0.98 / 0.97 (``+experiment=reference_hazcams``; docs/reference_policy.md,
 "Hazard cameras").
 """
 

@@ -136,6 +136,11 @@ class ShieldConfig:
         positive("eval.shield.relief_step", self.relief_step)
         positive("eval.shield.relief_roughness", self.relief_roughness)
         non_negative("eval.shield.relief_unseen_from", self.relief_unseen_from)
+        if self.relief_unseen_from > 0 and not self.relief:
+            raise ConfigError(
+                f"eval.shield.relief_unseen_from={self.relief_unseen_from}: expected eval.shield.relief=true with it "
+                "(the cells it keeps off are those the relief check cannot judge), or 0"
+            )
         if isinstance(self.relief_min_known, bool) or not isinstance(self.relief_min_known, int):
             raise ConfigError(f"eval.shield.relief_min_known: expected an integer >= 3, got {self.relief_min_known!r}")
         if self.relief_min_known < 3:

@@ -553,6 +553,12 @@ def test_bad_settings_name_their_key(key, value):
         ShieldConfig(**{key: value})
 
 
+def test_the_unseen_veto_without_the_relief_check_is_refused():
+    with pytest.raises(ConfigError, match=r"eval.shield.relief_unseen_from=0.8: expected eval.shield.relief=true"):
+        ShieldConfig(relief_unseen_from=0.8)
+    assert ShieldConfig(relief=True, relief_unseen_from=0.8).relief_unseen_from == 0.8
+
+
 @pytest.mark.parametrize("low", [0.0, 0.12, 0.2])
 def test_a_smooth_ground_limit_must_lie_under_the_obstacle_height(low):
     with pytest.raises(ConfigError, match=r"eval.shield.smooth_obstacle_height: .*below eval.shield.obstacle_height"):
