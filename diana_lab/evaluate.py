@@ -15,6 +15,7 @@ id of a training run (see :mod:`diana_lab.evaluation.loading`)::
   ``dynamics`` group. A ``dynamics=`` group chosen on the command line counts as ``eval.dynamics`` (it
   would otherwise be replaced by the training's without a word): ``policy=pretrained dynamics=physics``
   evaluates in physics, with any ``dynamics.<key>=`` settings; ``eval.dynamics`` naming another one is an error.
+  ``dynamics.<key>=`` settings without a group change the training's dynamics (a key it lacks is an error).
 * ``eval.sensor_noise=[...]`` evaluates once per level in ``noise_<level>/`` with ``sensor.noise_level`` set
   to it; a sensor configured without noise (``sensor.noise=none``) takes the ``realistic`` preset for the
   sweep. ``output`` then holds ``{"sensor_noise": {"<level>": summary, ...}}``.
@@ -27,6 +28,7 @@ with status 2.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -36,13 +38,20 @@ from diana_lab.cli import UserError, hydra_app, output_file
 
 __all__ = ["chosen_dynamics", "env_config", "main", "run"]
 
+_ABSENT = object()  # OmegaConf.select's default: a key the config does not have
 
-def chosen_dynamics(cfg: DictConfig, overrides: list[str]) -> None:
+
+def chosen_dynamics(cfg: DictConfig, overrides: list[str]) -> list[str]:
     """Let a ``dynamics=<name>`` among the command line's ``overrides`` set ``eval.dynamics`` (in place): with
-    ``eval.dynamics`` null the training's dynamics would replace it silently. Both set and different: an error."""
-    chosen = [o for o in overrides if o.lstrip("+~").split("=", 1)[0] == "dynamics" and "=" in o]
+    ``eval.dynamics`` null the training's dynamics would replace it silently. Both set and different: an error.
+
+    Returns the ``dynamics.<key>`` settings given without a ``dynamics=`` group (``dynamics.pose_noise.position_std``
+    ...): :func:`env_config` lays them over the training's dynamics when that replaces the command line's, so
+    that they are not dropped with it."""
+    settings = [o for o in overrides if "=" in o and not o.startswith("~")]
+    chosen = [o for o in settings if o.lstrip("+").split("=", 1)[0] == "dynamics"]
     if not chosen:
-        return
+        return [o.lstrip("+").split("=", 1)[0] for o in settings if o.lstrip("+").startswith("dynamics.")]
     name = str(cfg.dynamics.get("name"))
     if cfg.eval.get("dynamics") is None:
         with open_dict(cfg):
@@ -53,10 +62,14 @@ def chosen_dynamics(cfg: DictConfig, overrides: list[str]) -> None:
             f"give either (eval.dynamics={cfg.eval.dynamics} takes conf/dynamics/{cfg.eval.dynamics}.yaml as it is, "
             f"dynamics={cfg.eval.dynamics} dynamics.<key>=... changes its settings)"
         )
+    return []
 
 
-def env_config(cfg: DictConfig, eval_dynamics: str | None, train_cfg: DictConfig | None) -> DictConfig:
-    """The env groups to evaluate in: ``cfg``'s, with the dynamics of ``eval.dynamics`` (or of training)."""
+def env_config(
+    cfg: DictConfig, eval_dynamics: str | None, train_cfg: DictConfig | None, dynamics_keys: Sequence[str] = ()
+) -> DictConfig:
+    """The env groups to evaluate in: ``cfg``'s, with the dynamics of ``eval.dynamics`` (or of training, with
+    ``cfg``'s values of ``dynamics_keys``, the command line's ``dynamics.<key>`` settings, laid over it)."""
     from diana_lab.config import compose
 
     env_cfg = OmegaConf.masked_copy(
@@ -69,6 +82,14 @@ def env_config(cfg: DictConfig, eval_dynamics: str | None, train_cfg: DictConfig
                 env_cfg.dynamics = compose([], config_name=f"dynamics/{eval_dynamics}").dynamics
         elif train_cfg is not None and "dynamics" in train_cfg:
             env_cfg.dynamics = train_cfg.dynamics
+            name = train_cfg.dynamics.get("name")
+            for key in dynamics_keys:
+                if OmegaConf.select(env_cfg, key, default=_ABSENT) is _ABSENT:
+                    raise UserError(
+                        f"{key}: not a setting of the training's dynamics ({name}); choose the dynamics to evaluate "
+                        f"in as well (dynamics=<name> {key}=...)"
+                    )
+                OmegaConf.update(env_cfg, key, OmegaConf.select(cfg, key), merge=False)
     return env_cfg
 
 
@@ -79,8 +100,9 @@ def _table(summaries: dict[str, dict[str, Any]], index: str) -> str:
     return table.to_string(formatters={"episodes": lambda v: f"{int(v)}"}, float_format=lambda v: f"{v:.3f}")
 
 
-def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
-    """The evaluation behind the command (testable without Hydra); returns what ``output`` receives."""
+def run(cfg: DictConfig, out_dir: Path, dynamics_keys: Sequence[str] = ()) -> dict[str, Any]:
+    """The evaluation behind the command (testable without Hydra); returns what ``output`` receives.
+    ``dynamics_keys``: :func:`chosen_dynamics`'s."""
     from diana_lab.config import to_object
     from diana_lab.envs.rover_nav import RoverNavEnv
     from diana_lab.evaluation.core import evaluate, sweep_sensor_noise
@@ -103,7 +125,7 @@ def run(cfg: DictConfig, out_dir: Path) -> dict[str, Any]:
     loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
     if loaded.note:
         print(f"{loaded.label}: {loaded.note}")
-    env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg))
+    env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg, dynamics_keys))
     try:
         if loaded.model is not None:
             hints = config_differences(loaded.train_cfg, cfg)
@@ -149,8 +171,8 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     hydra_cfg = HydraConfig.get()
-    chosen_dynamics(cfg, list(hydra_cfg.overrides.task))
-    run(cfg, Path(hydra_cfg.runtime.output_dir))
+    dynamics_keys = chosen_dynamics(cfg, list(hydra_cfg.overrides.task))
+    run(cfg, Path(hydra_cfg.runtime.output_dir), dynamics_keys)
 
 
 if __name__ == "__main__":

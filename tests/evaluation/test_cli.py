@@ -6,6 +6,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from diana_lab.evaluation.metrics import SUMMARY_KEYS
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -105,3 +107,30 @@ def test_a_dynamics_group_and_an_eval_dynamics_that_disagree_exit_2_naming_both(
     assert proc.returncode == 2, proc.stderr
     assert "dynamics=physics" in proc.stderr and "eval.dynamics=kinematic" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_dynamics_settings_without_a_group_are_laid_over_the_trainings_dynamics():
+    """``policy=pretrained dynamics.pose_noise.position_std=0.2``: the training's dynamics replaces the command
+    line's, and used to take the setting with it without a word."""
+    from diana_lab.cli import UserError
+    from diana_lab.config import compose
+    from diana_lab.evaluate import chosen_dynamics, env_config
+
+    trained = compose(["+experiment=reference"])
+    assert trained.dynamics.pose_noise.position_std != 0.2
+    overrides = ["policy=pretrained", "+experiment=reference", "dynamics.pose_noise.position_std=0.2"]
+    cfg = compose(overrides[1:])
+    keys = chosen_dynamics(cfg, overrides)
+    assert keys == ["dynamics.pose_noise.position_std"] and cfg.eval.dynamics is None
+    env_cfg = env_config(cfg, None, trained, keys)
+    assert env_cfg.dynamics.name == trained.dynamics.name
+    assert env_cfg.dynamics.pose_noise.position_std == 0.2
+    assert trained.dynamics.pose_noise.position_std != 0.2  # the training's config is not changed
+
+    # a setting the training's dynamics does not have: physics-only keys on a kinematic-trained policy
+    physics_only = ["policy=pretrained", "dynamics.time_step=0.01"]
+    cfg = compose(["dynamics=physics", "dynamics.time_step=0.01"])
+    keys = chosen_dynamics(cfg, physics_only)
+    assert keys == ["dynamics.time_step"]
+    with pytest.raises(UserError, match=r"dynamics\.time_step.*kinematic"):
+        env_config(cfg, None, trained, keys)
