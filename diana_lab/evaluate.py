@@ -93,6 +93,23 @@ def env_config(
     return env_cfg
 
 
+def _check_spaces(loaded: Any, env: Any, cfg: DictConfig) -> None:
+    """Refuse a model trained on other observations or actions than ``env``'s, naming the config keys that
+    differ from its training's (and the preset of the shipped policy, when left out)."""
+    from diana_lab.evaluation.loading import check_action_space, check_observation_space, config_differences
+
+    def hints(*groups: str) -> list[str]:
+        diffs = config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
+        # another group chosen than the shipped policy's (sensor.name: training lidar3d, here ...): the preset is missing
+        if loaded.label == "pretrained" and any(d.split(":", 1)[0].endswith(".name") for d in diffs):
+            return ["add +experiment=reference (the shipped policy's training preset)", *diffs]
+        return diffs
+
+    model = loaded.model
+    check_observation_space(model.observation_space, env.observation_space, loaded.label, hints())
+    check_action_space(model.action_space, env.action_space, loaded.label, hints("action_space"))
+
+
 def _table(summaries: dict[str, dict[str, Any]], index: str) -> str:
     from diana_lab.evaluation.core import summary_table
 
@@ -106,7 +123,7 @@ def run(cfg: DictConfig, out_dir: Path, dynamics_keys: Sequence[str] = ()) -> di
     from diana_lab.config import to_object
     from diana_lab.envs.rover_nav import RoverNavEnv
     from diana_lab.evaluation.core import evaluate, sweep_sensor_noise
-    from diana_lab.evaluation.loading import check_observation_space, config_differences, load_policy
+    from diana_lab.evaluation.loading import load_policy
     from diana_lab.evaluation.metrics import to_json
     from diana_lab.evaluation.tracking import log_evaluation, tracking_settings
     from diana_lab.tracking.mlflow_run import writable_store
@@ -128,10 +145,7 @@ def run(cfg: DictConfig, out_dir: Path, dynamics_keys: Sequence[str] = ()) -> di
     env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg, dynamics_keys))
     try:
         if loaded.model is not None:
-            hints = config_differences(loaded.train_cfg, cfg)
-            if loaded.label == "pretrained":
-                hints = ["add +experiment=reference (the shipped policy's training preset)", *hints]
-            check_observation_space(loaded.model.observation_space, env.observation_space, loaded.label, hints)
+            _check_spaces(loaded, env, cfg)
         if eval_cfg.sensor_noise:
             levels = sweep_sensor_noise(loaded.policy, env, eval_cfg, out_dir)
             summaries = {f"{level:g}": s for level, s in levels.items()}

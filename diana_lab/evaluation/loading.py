@@ -45,7 +45,15 @@ from diana_lab.config import ConfigError
 from diana_lab.evaluation.oracle import AStarOracle
 from diana_lab.evaluation.policies import Policy, SB3Policy, ShieldedPolicy, StraightLine
 
-__all__ = ["BASELINES", "PRETRAINED_DIR", "LoadedPolicy", "check_observation_space", "load_policy", "load_sb3"]
+__all__ = [
+    "BASELINES",
+    "PRETRAINED_DIR",
+    "LoadedPolicy",
+    "check_action_space",
+    "check_observation_space",
+    "load_policy",
+    "load_sb3",
+]
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "assets" / "policies" / "reference"
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -347,4 +355,32 @@ def check_observation_space(
         raise ConfigError(
             f"policy {label}: trained with other observation settings than this evaluation: "
             f"{'; '.join(problems)}.{hint}"
+        )
+
+
+def check_action_space(
+    model_space: spaces.Space, env_space: spaces.Space, label: str, hints: list[str] | None = None
+) -> None:
+    """Refuse a policy trained on another action space. A categorical policy over 16 headings in an env of 64
+    would run without a word, its indices meaning other waypoints; over 64 in an env of 16, fail mid-episode."""
+
+    def describe(space: spaces.Space) -> str:
+        if isinstance(space, spaces.Discrete):
+            return f"{space.n} candidate waypoints (discrete)"
+        return f"a continuous {tuple(space.shape or ())} waypoint"
+
+    same = type(model_space) is type(env_space) and (
+        model_space.n == env_space.n
+        if isinstance(model_space, spaces.Discrete)
+        else tuple(model_space.shape or ()) == tuple(env_space.shape or ())
+    )
+    if not same:
+        hint = (
+            f" Differing config keys: {'; '.join(hints[:8])}."
+            if hints
+            else " Evaluate with the action_space the policy was trained with (action_space=..., headings, distances)."
+        )
+        raise ConfigError(
+            f"policy {label}: trained on {describe(model_space)}, but this evaluation's action_space gives "
+            f"{describe(env_space)}.{hint}"
         )

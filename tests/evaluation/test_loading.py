@@ -5,7 +5,12 @@ from gymnasium import spaces
 from diana_lab.cli import UserError
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.evaluation import run_suite
-from diana_lab.evaluation.loading import check_observation_space, config_differences, load_policy
+from diana_lab.evaluation.loading import (
+    check_action_space,
+    check_observation_space,
+    config_differences,
+    load_policy,
+)
 from diana_lab.evaluation.suite import EpisodeSpec
 
 
@@ -29,6 +34,22 @@ def test_observation_mismatch_names_the_key_and_shapes():
         }
     )
     check_observation_space(trained, wider, "model.zip")
+
+
+@pytest.mark.parametrize(
+    ("model_space", "env_space", "expected"),
+    [
+        (spaces.Discrete(48), spaces.Discrete(192), "48 candidate waypoints.*192 candidate waypoints"),
+        (spaces.Discrete(96), spaces.Box(-1, 1, (2,)), r"96 candidate waypoints.*continuous \(2,\)"),
+        (spaces.Box(-1, 1, (2,)), spaces.Discrete(96), r"continuous \(2,\).*96 candidate"),
+    ],
+)
+def test_action_mismatch_names_both_spaces_and_the_differing_keys(model_space, env_space, expected):
+    with pytest.raises(ConfigError, match=expected) as info:
+        check_action_space(model_space, env_space, "m.zip", ["action_space.headings: training 16, here 64"])
+    assert "action_space.headings: training 16, here 64" in str(info.value)
+    check_action_space(model_space, model_space, "m.zip")  # the same space passes
+    check_action_space(spaces.Box(-1, 1, (2,)), spaces.Box(-2, 2, (2,)), "m.zip")  # bounds may differ
 
 
 def test_config_differences_name_the_keys():
