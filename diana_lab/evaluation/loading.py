@@ -154,6 +154,25 @@ def load_sb3(
     return SB3Policy(model, vn, deterministic=deterministic, seed=seed), model
 
 
+def _vecnormalize_file(model_zip: Path, train_cfg: DictConfig | None) -> Path | None:
+    """The observation statistics saved with ``model_zip``: a checkpoint's own
+    (``rl_model_vecnormalize_<n>_steps.pkl``: the run's final ``vecnormalize.pkl`` would normalise its
+    observations with other statistics), else ``vecnormalize.pkl`` beside it. A run that normalised
+    (``algo.normalize``) without them is refused: the raw observations would run without a word."""
+    from diana_lab.training.checkpoints import MODEL_RE, PREFIX
+
+    checkpoint = MODEL_RE.match(model_zip.name)
+    name = f"{PREFIX}_vecnormalize_{checkpoint.group(1)}_steps.pkl" if checkpoint else "vecnormalize.pkl"
+    expected = model_zip.parent / name
+    path = expected if expected.is_file() else None
+    if path is None and train_cfg is not None and OmegaConf.select(train_cfg, "algo.normalize", default=False):
+        raise UserError(
+            f"policy: '{model_zip}' was trained with algo.normalize=true, but its observation statistics "
+            f"'{expected}' are missing; copy them beside the model (they were saved with it)"
+        )
+    return path
+
+
 def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: str | None = None) -> LoadedPolicy:
     cfg_path = next(
         (
@@ -171,7 +190,7 @@ def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: st
     train_cfg = _train_config(cfg_path)
     policy, model = load_sb3(
         model_zip,
-        model_zip.parent / "vecnormalize.pkl",
+        _vecnormalize_file(model_zip, train_cfg),
         train_cfg,
         deterministic=eval_cfg.deterministic,
         seed=eval_cfg.seed,

@@ -101,3 +101,34 @@ def test_pretrained_without_its_files_says_what_is_missing(tmp_path, monkeypatch
     with pytest.raises(UserError, match="not shipped") as err:
         load_policy("pretrained", compose([]), to_object("eval", compose([]).eval))
     assert str(tmp_path / "model.zip") in str(err.value)
+
+
+def test_a_checkpoint_loads_its_own_observation_statistics_and_a_normalised_run_without_them_is_refused(
+    tmp_path, flat_env
+):
+    """``checkpoints/rl_model_<n>_steps.zip`` used to look for ``vecnormalize.pkl`` beside it, find none and run
+    on raw observations without a word."""
+    from omegaconf import OmegaConf
+    from stable_baselines3 import PPO
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from tests.evaluation.conftest import small_env
+
+    model = PPO("MultiInputPolicy", flat_env, n_steps=8, batch_size=8, policy_kwargs={"net_arch": [8]}, seed=0)
+    run = tmp_path / "run"
+    (run / "checkpoints").mkdir(parents=True)
+    (run / ".hydra").mkdir()
+    OmegaConf.save(compose(["world=flat", "algo.normalize=true"]), run / ".hydra" / "config.yaml")
+    model.save(run / "checkpoints" / "rl_model_8_steps.zip")
+    stats = VecNormalize(DummyVecEnv([small_env]), norm_obs_keys=["goal"])
+    stats.obs_rms["goal"].mean[:] = 3.25  # recognisable
+    stats.save(run / "checkpoints" / "rl_model_vecnormalize_8_steps.pkl")
+    stats.venv.close()
+    cfg = compose(["world=flat"])
+    loaded = load_policy(str(run / "checkpoints" / "rl_model_8_steps.zip"), cfg, to_object("eval", cfg.eval))
+    assert loaded.policy.vecnormalize is not None
+    assert np.allclose(loaded.policy.vecnormalize.obs_rms["goal"].mean, 3.25)
+
+    (run / "checkpoints" / "rl_model_vecnormalize_8_steps.pkl").unlink()
+    with pytest.raises(UserError, match=r"algo\.normalize=true.*rl_model_vecnormalize_8_steps\.pkl"):
+        load_policy(str(run / "checkpoints" / "rl_model_8_steps.zip"), cfg, to_object("eval", cfg.eval))
