@@ -101,7 +101,7 @@ def _check_spaces(loaded: Any, env: Any, cfg: DictConfig) -> None:
 
     def hints(*groups: str) -> list[str]:
         diffs = config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
-        # another group chosen than the shipped policy's (sensor.name: training lidar3d, here ...): the preset is missing
+        # another group chosen than the shipped policy's (sensor.name: training lidar3d, here ...): no preset
         if loaded.label == "pretrained" and any(d.split(":", 1)[0].endswith(".name") for d in diffs):
             return ["add +experiment=reference (the shipped policy's training preset)", *diffs]
         return diffs
