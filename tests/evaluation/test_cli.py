@@ -139,8 +139,14 @@ def test_dynamics_settings_without_a_group_are_laid_over_the_trainings_dynamics(
 def test_the_pretrained_policy_on_another_action_space_exits_2_naming_the_key(tmp_path):
     """``action_space.headings=64`` used to run silently (the policy's indices meaning other waypoints); the
     preset hint stays out when the preset was given (the differing key is the point)."""
-    proc = evaluate_cli(tmp_path / "run", "policy=pretrained", "+experiment=reference", *TINY[-1:],
-                        "action_space.headings=64", "eval.episodes=1")
+    proc = evaluate_cli(
+        tmp_path / "run",
+        "policy=pretrained",
+        "+experiment=reference",
+        *TINY[-1:],
+        "action_space.headings=64",
+        "eval.episodes=1",
+    )
     assert proc.returncode == 2, proc.stderr
     assert "action_space.headings: training 32, here 64" in proc.stderr
     assert "+experiment=reference" not in proc.stderr and "Traceback" not in proc.stderr
