@@ -4,10 +4,15 @@ Accepted: an MLflow run id (its Hydra run dir's newest checkpoint when that dir 
 newest checkpoint artefact, downloaded), a Hydra run dir (its ``checkpoints/``, else ``model/``), a
 checkpoints dir, or a model ``.zip``. A run dir's ``run_info.json`` names its MLflow run, so resuming from a
 path also continues the same MLflow run when the store is the same.
+
+:func:`check_resumable` compares the env the run continues in with the one it was trained in (its
+``.hydra/config.yaml``): other observations or actions are an error naming the config keys that differ,
+other settings (reward, world, dynamics...) are allowed -- fine-tuning elsewhere is a use -- but reported.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
 import zipfile
@@ -15,12 +20,16 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
+from omegaconf import DictConfig, OmegaConf
+
 from diana_lab.cli import UserError
 from diana_lab.training.checkpoints import MODEL_RE, Checkpoint, latest_checkpoint
 
-__all__ = ["RUN_INFO", "ResumePoint", "find_resume_point", "read_run_info", "write_run_info"]
+__all__ = ["RUN_INFO", "ResumePoint", "check_resumable", "find_resume_point", "read_run_info", "write_run_info"]
 
 RUN_INFO = "run_info.json"
+CONFIG = ".hydra/config.yaml"  # the training's composed config, in its run dir and among its MLflow artefacts
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
 
 
@@ -30,6 +39,8 @@ class ResumePoint:
     run_id: str | None  # the MLflow run to continue, if known
     algo: str | None  # the algorithm the checkpoint was trained with, if known
     source: str  # for messages
+    config: Path | None = None  # the training's .hydra/config.yaml, if known
+    changes: tuple[str, ...] = ()  # the env settings that differ from the training's (check_resumable's)
 
 
 def write_run_info(run_dir: Path, info: dict[str, Any]) -> None:
@@ -78,7 +89,8 @@ def _from_path(path: Path, uri: str | None) -> ResumePoint:
         if info:
             break
     same_store = uri is not None and info.get("tracking_uri") == uri
-    return ResumePoint(ckpt, info.get("mlflow_run_id") if same_store else None, info.get("algo"), str(path))
+    config = next((c for d in (path, path.parent, path.parent.parent) if (c := d / CONFIG).is_file()), None)
+    return ResumePoint(ckpt, info.get("mlflow_run_id") if same_store else None, info.get("algo"), str(path), config)
 
 
 def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
@@ -96,7 +108,8 @@ def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
     tags = run.data.tags
     local = Path(tags["run_dir"]) if tags.get("run_dir") else None
     if local is not None and (ckpt := _from_dir(local)) is not None:
-        return ResumePoint(ckpt, run_id, tags.get("algo"), f"run {run_id} ({local})")
+        config = local / CONFIG if (local / CONFIG).is_file() else None
+        return ResumePoint(ckpt, run_id, tags.get("algo"), f"run {run_id} ({local})", config)
     names = [Path(a.path).name for a in client.list_artifacts(run_id, "checkpoints")]
     steps = [int(m.group(1)) for n in names if (m := MODEL_RE.match(n))]
     if not steps:
@@ -106,11 +119,15 @@ def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
     for name in names:
         if name.endswith(f"_{best}_steps.zip") or name.endswith(f"_{best}_steps.pkl"):
             client.download_artifacts(run_id, f"checkpoints/{name}", str(download_dir))
+    config = None
+    with contextlib.suppress(MlflowException, OSError):  # a run logged without its .hydra/: nothing to compare
+        config = Path(client.download_artifacts(run_id, CONFIG, str(download_dir)))
     return ResumePoint(
         Checkpoint.at(download_dir / "checkpoints", best),
         run_id,
         tags.get("algo"),
         f"run {run_id} (downloaded checkpoint)",
+        config,
     )
 
 
@@ -125,3 +142,37 @@ def find_resume_point(spec: str, uri: str | None, download_dir: Path) -> ResumeP
     raise UserError(
         f"train.resume={spec}: expected an MLflow run id, a Hydra run dir or a checkpoint .zip; no such path{hint}"
     )
+
+
+def check_resumable(resume: ResumePoint, cfg: DictConfig, env: gym.Env) -> list[str]:
+    """Refuse to continue ``resume``'s model in ``env`` when its observation or action space differs (SB3 would
+    refuse too, after the MLflow run is open and without saying which setting changed); return the config keys
+    of the env groups that differ from the training's (``reward.weights.goal: training 10.0, here 20.0``)."""
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    from diana_lab.config import GROUPS
+    from diana_lab.evaluation.loading import config_differences
+
+    train_cfg = OmegaConf.load(resume.config) if resume.config is not None else None
+    diffs = config_differences(train_cfg, cfg, GROUPS)
+    data, _, _ = load_from_zip_file(resume.checkpoint.model, load_data=True, device="cpu")
+    assert data is not None
+    for kind, saved, here in (
+        ("observation", data.get("observation_space"), env.observation_space),
+        ("action", data.get("action_space"), env.action_space),
+    ):
+        if saved is not None and saved != here:  # SB3's own rule: equal spaces, bounds included
+            if isinstance(saved, gym.spaces.Dict) and isinstance(here, gym.spaces.Dict):
+                shown = "; ".join(
+                    f"'{k}' {saved.spaces.get(k)} there, {here.spaces.get(k)} here"
+                    for k in sorted(set(saved.spaces) | set(here.spaces))
+                    if saved.spaces.get(k) != here.spaces.get(k)
+                )
+            else:
+                shown = f"{saved} there, {here} here"
+            keys = f" Differing config keys: {'; '.join(diffs[:8])}." if diffs else ""
+            raise UserError(
+                f"train.resume: {resume.source} was trained on another {kind} space than this config gives "
+                f"({shown}); continue it with the settings it was trained with.{keys}"
+            )
+    return diffs

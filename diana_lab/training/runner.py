@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import json
 import math
@@ -37,7 +38,7 @@ from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resol
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.git import git_commit, git_dirty
 from diana_lab.tracking.names import eval_metrics
-from diana_lab.tracking.params import flatten
+from diana_lab.tracking.params import flatten, truncate
 from diana_lab.training.checkpoints import TrackedCheckpoints
 from diana_lab.training.context import TAG_GROUPS, RunContext, StopRun
 from diana_lab.training.envs import (
@@ -52,13 +53,27 @@ from diana_lab.training.episode_stats import EpisodeStats
 from diana_lab.training.imitation import ImitationResult, imitate
 from diana_lab.training.periodic_eval import PeriodicEvaluation, save_model
 from diana_lab.training.progress import ProgressWithStats
-from diana_lab.training.resume import ResumePoint, find_resume_point, write_run_info
+from diana_lab.training.resume import ResumePoint, check_resumable, find_resume_point, write_run_info
 from diana_lab.training.signals import InterruptCheck, interrupts_as_exceptions
 from diana_lab.training.summary import TrainResult
 
 __all__ = ["RUN_GROUPS", "train"]
 
 RUN_GROUPS = (*C.GROUPS, "algo", "train", "eval", "tracking")
+
+
+def _checked_resume(resume: ResumePoint, cfg: DictConfig) -> ResumePoint:
+    """``resume`` with the env settings that differ from its training's, printed: continuing on a new world or
+    reward is allowed (fine-tuning), but said; another observation or action space is an error."""
+    env = make_env(env_config(cfg))
+    try:
+        changes = check_resumable(resume, cfg, env)
+    finally:
+        env.close()
+    if changes:
+        listed = "\n  ".join(changes)
+        print(f"train.resume: {resume.source} continues with other settings than it was trained with:\n  {listed}")
+    return dataclasses.replace(resume, changes=tuple(changes))
 
 
 def _saved_timesteps(model_zip: Path) -> int:
@@ -125,6 +140,8 @@ class TrainingRun:
             tags["hydra_job"] = self.ctx.job_num
         if self.resume is not None:
             tags["resumed_from"] = self.resume.source
+            if self.resume.changes:
+                tags["resume_config_changes"] = truncate("; ".join(self.resume.changes))
         t.set_tags(tags)
         resolved = OmegaConf.to_container(self.cfg, resolve=True)
         t.log_params(_flat_missing(resolved, t.existing_params()))
@@ -314,6 +331,8 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
 
         check_perceivable(cfg, "train.imitation.expert=astar_seen")
     check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
+    if resume is not None:
+        resume = _checked_resume(resume, cfg)
     for world in training_worlds(cfg, train_cfg)[1:]:  # and so does a bad train.worlds entry
         check_env({**env_config(cfg), "world": world}, seed)
     tracker, run, status, summary = Tracker(), None, "FAILED", {}

@@ -78,6 +78,25 @@ def test_resume_from_run_dir_and_finished_budget_is_a_clear_error(tmp_path, caps
     assert "train.total_timesteps" in capsys.readouterr().err
 
 
+def test_resume_in_another_env_is_refused_or_reported_naming_the_keys(tmp_path, capsys):
+    """Other observations: refused before any MLflow run, naming the setting (SB3 named only the spaces, once the
+    run was open). Another reward: allowed (fine-tuning), but printed and tagged, not silent."""
+    base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "eval.every=0", "train.final_eval=false"]
+    assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
+    client, (run,) = runs(tmp_path)
+    capsys.readouterr()
+    resume = ["train.total_timesteps=512", f"train.resume={run.info.run_id}"]
+    assert run_in_process([*base, "sensor.width=32", *resume, *store_args(tmp_path, "wider")]) == 2
+    err = capsys.readouterr().err
+    assert "observation space" in err and "sensor.width: training 16, here 32" in err
+    assert client.get_run(run.info.run_id).info.status == "FINISHED"  # the run was not reopened and failed
+
+    assert run_in_process([*base, "reward.terms.goal.weight=20", *resume, *store_args(tmp_path, "second")]) == 0
+    assert "reward.terms.goal.weight: training 10.0, here 20.0" in capsys.readouterr().out
+    tags = client.get_run(run.info.run_id).data.tags
+    assert "reward.terms.goal.weight: training 10.0, here 20.0" in tags["resume_config_changes"]
+
+
 def test_multirun_gives_one_run_per_job(tmp_path):
     args = [
         "-m",
