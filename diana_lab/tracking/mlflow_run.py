@@ -44,10 +44,12 @@ def sqlite_path(uri: str) -> Path | None:
 def writable_store(uri: str, key: str = "tracking.uri") -> str:
     """``uri`` resolved; for an SQLite store, its folder is created and checked writable now, so a place that
     cannot hold the database (a missing or read-only folder, a file in the way) fails with a message naming
-    ``key`` instead of an ``OSError`` from deep inside MLflow -- or, for an evaluation, after the work."""
+    ``key`` instead of an ``OSError`` from deep inside MLflow -- or, for an evaluation, after the work. Any other
+    store (a server, another database) must answer one query now, for the same reason."""
     resolved = resolve_uri(uri)
     db = sqlite_path(resolved)
     if db is None:
+        _answers(resolved, key, uri)
         return resolved
     try:
         db.parent.mkdir(parents=True, exist_ok=True)
@@ -60,6 +62,28 @@ def writable_store(uri: str, key: str = "tracking.uri") -> str:
     if not os.access(target, os.W_OK):
         raise ConfigError(f"{key}={uri}: '{target}' is not writable; expected a writable SQLite store path")
     return resolved
+
+
+def _answers(resolved: str, key: str, uri: str) -> None:
+    """One query to a store that is not SQLite, without MLflow's minutes of HTTP retries: a server that is down or
+    a database whose driver is not installed fails here, naming ``key``."""
+    from mlflow.tracking import MlflowClient
+
+    retries = os.environ.get("MLFLOW_HTTP_REQUEST_MAX_RETRIES")
+    os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] = "0"
+    try:
+        MlflowClient(resolved).search_experiments(max_results=1)
+    except Exception as exc:  # MlflowException, a missing driver (ImportError), a bad URI (ValueError)...
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ConfigError(
+            f"{key}={uri}: the tracking store does not answer ({type(exc).__name__}: {first[:300]}); expected "
+            "sqlite:///<path>.db or the URI of a running MLflow server (mlflow server ...)"
+        ) from exc
+    finally:
+        if retries is None:
+            os.environ.pop("MLFLOW_HTTP_REQUEST_MAX_RETRIES", None)
+        else:
+            os.environ["MLFLOW_HTTP_REQUEST_MAX_RETRIES"] = retries
 
 
 def _quiet_mlflow() -> None:

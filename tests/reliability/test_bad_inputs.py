@@ -216,6 +216,20 @@ ROWS = [
         slow=True,
     ),
     Bad(
+        "evaluate-tracking-server-down",  # failed with a traceback after the evaluation
+        EVAL,
+        ("policy=straight", *EVAL_ARGS, "tracking.uri=http://127.0.0.1:9"),
+        ("tracking.uri=http://127.0.0.1:9", "does not answer"),
+        slow=True,
+    ),
+    Bad(
+        "tracking-uri-database-without-driver",
+        TRAIN,
+        ("tracking.uri=postgresql://u@127.0.0.1:9/db",),
+        ("tracking.uri=postgresql", "psycopg"),
+        slow=True,
+    ),
+    Bad(
         "export-random-bytes-model",
         EXPORT,
         ("policy={files}/random.zip", "output={tmp}/policy.onnx"),

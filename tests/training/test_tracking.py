@@ -106,3 +106,21 @@ def test_tracker_reopens_a_run(tmp_path):
     assert again.run_id == first.run_id and again.existing_params() == {"a": "1"}
     again.end("FINISHED")
     assert MlflowClient(uri).get_run(first.run_id).info.status == "FINISHED"
+
+
+@pytest.mark.parametrize(
+    ("uri", "named"),
+    [("http://127.0.0.1:9", "MlflowException"), ("postgresql://u@127.0.0.1:9/db", "psycopg")],
+)
+def test_a_store_that_does_not_answer_is_a_config_error_naming_the_key(uri, named):
+    """Checked before the work (an evaluation used to fail with a traceback after it), without MLflow's minutes
+    of HTTP retries."""
+    import os
+
+    from diana_lab.config import ConfigError
+    from diana_lab.tracking.mlflow_run import writable_store
+
+    before = os.environ.get("MLFLOW_HTTP_REQUEST_MAX_RETRIES")
+    with pytest.raises(ConfigError, match=rf"tracking\.uri={uri}: the tracking store does not answer.*{named}"):
+        writable_store(uri)
+    assert os.environ.get("MLFLOW_HTTP_REQUEST_MAX_RETRIES") == before  # put back
