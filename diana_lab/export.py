@@ -3,7 +3,9 @@
 Exports a trained policy for the rover's onboard computer: ``policy.onnx`` (observation normalisation,
 network, deterministic action, action -> waypoint-offset mapping) and ``policy.json`` next to it (the
 sensor model, encoding, action space and goal scaling the runtime needs). The policy is loaded exactly as
-``python -m diana_lab.evaluate`` loads it (:func:`diana_lab.evaluation.loading.load_policy`). Run the
+``python -m diana_lab.evaluate`` loads it (:func:`diana_lab.evaluation.loading.load_policy`); the sidecar takes
+``sensor``, ``action_space``, ``episode``, ``robot`` and ``eval.shield`` from its training config, and refuses
+command-line settings of the first four that would change it (:func:`diana_lab.deploy.command.run`). Run the
 result with :class:`diana_lab.deploy.Navigator` (numpy + onnxruntime only); see ``docs/deploy.md``::
 
     python -m diana_lab.export policy=<run id> output=exports/policy.onnx
@@ -21,9 +23,15 @@ __all__ = ["main"]
 
 @hydra_app(config_name="export")
 def main(cfg: DictConfig) -> None:
-    from diana_lab.deploy.export import run
+    from hydra.core.hydra_config import HydraConfig
 
-    run(cfg)
+    from diana_lab.deploy.command import run
+
+    # the command line's overrides tell a setting chosen there (eval.shield.enabled=false, robot=jackal) from a
+    # default; called outside this app (a composed config; another app's config left behind in the process), only
+    # the settings that differ from the defaults show
+    ours = HydraConfig.initialized() and HydraConfig.get().job.config_name == "export"
+    run(cfg, list(HydraConfig.get().overrides.task) if ours else None)
 
 
 if __name__ == "__main__":

@@ -49,7 +49,16 @@ from diana_lab.config.env import ActionSpaceConfig, EpisodeConfig
 from diana_lab.config.sensing import DepthCameraConfig, Lidar3dConfig, SensorConfig
 from diana_lab.deploy.spec import ActionSpec, EncodingSpec, PolicySpec, SensorSpec, sidecar_path
 
-__all__ = ["ExportablePolicy", "expected_shape", "export_policy", "policy_spec"]
+__all__ = [
+    "DEFAULT_OPSET",
+    "ExportablePolicy",
+    "check_opset",
+    "check_output",
+    "expected_shape",
+    "export_policy",
+    "opset_range",
+    "policy_spec",
+]
 
 DEFAULT_OPSET = 17  # what onnxruntime >= 1.14 and TensorRT 8.6 (JetPack 5/6) both run
 VERIFY_TOLERANCE = 1e-4  # metres: ONNX vs torch on random observations, checked at every export
@@ -398,6 +407,42 @@ def _decisive(reference: ExportablePolicy, goal: np.ndarray, enc: np.ndarray, ke
     return (top[:, 0] - top[:, 1]).numpy() >= LOGIT_TIE
 
 
+def opset_range() -> tuple[int, int]:
+    """The opsets torch's TorchScript exporter supports (below, it writes graphs the onnx checker refuses; above,
+    it only warns that they are unsupported), capped by what the installed onnx knows."""
+    import onnx
+    from torch.onnx import _constants
+
+    high = getattr(_constants, "ONNX_TORCHSCRIPT_EXPORTER_MAX_OPSET", _constants.ONNX_MAX_OPSET)
+    return int(_constants.ONNX_MIN_OPSET), min(int(high), int(onnx.defs.onnx_opset_version()))
+
+
+def check_opset(opset: int) -> None:
+    """Refuse an opset outside :func:`opset_range` before anything is exported (naming ``opset``)."""
+    from diana_lab.cli import UserError
+
+    low, high = opset_range()
+    if not low <= opset <= high:
+        raise UserError(
+            f"opset={opset}: expected an ONNX opset from {low} to {high} (what torch {torch.__version__}'s exporter "
+            f"and the installed onnx support); the default, {DEFAULT_OPSET}, runs on onnxruntime >= 1.14 and "
+            "TensorRT 8.6"
+        )
+
+
+def check_output(output: Path) -> None:
+    """Refuse an ``output`` whose sidecar (the same name with ``.json``) would be the graph's own file: the
+    sidecar, written last, would replace the graph."""
+    from diana_lab.cli import UserError
+
+    if output.suffix.lower() == ".json":
+        raise UserError(
+            f"output={output}: the sidecar goes next to the graph with the suffix .json, i.e. to this same file; "
+            f"expected the graph's path, e.g. output={output.with_suffix('.onnx')} (the sidecar then goes to "
+            f"{output.with_suffix('.json').name})"
+        )
+
+
 def export_policy(
     model: Any,
     vecnormalize: Any,
@@ -415,6 +460,9 @@ def export_policy(
     import onnx
     import onnxruntime as ort
 
+    output = Path(output)
+    check_output(output)
+    check_opset(opset)
     label = str((source or {}).get("label", "model"))
     key = _check_model(model, sensor, label)
     _check_action(model, action, label)
@@ -434,26 +482,37 @@ def export_policy(
         _replace_adaptive_pools(
             graph.policy, {"goal": torch.from_numpy(goal0), key: torch.from_numpy(enc0)}, graph.actor
         )
-    output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
     outputs = ["offset", "action", "logits"] if graph.discrete else ["offset", "action"]
-    with _quiet_export(), torch.no_grad():
-        torch.onnx.export(
-            graph,
-            (torch.from_numpy(goal0), torch.from_numpy(enc0)),
-            str(output),
-            input_names=["goal", key],
-            output_names=outputs,
-            opset_version=opset,
-            dynamo=False,
-            dynamic_axes={n: {0: "batch"} for n in ("goal", key, *outputs)},
-        )
-    onnx.checker.check_model(str(output))
     goal, enc = _samples(model, key, 16, seed=1)
+    try:
+        with _quiet_export(), torch.no_grad():
+            torch.onnx.export(
+                graph,
+                (torch.from_numpy(goal0), torch.from_numpy(enc0)),
+                str(output),
+                input_names=["goal", key],
+                output_names=outputs,
+                opset_version=opset,
+                dynamo=False,
+                dynamic_axes={n: {0: "batch"} for n in ("goal", key, *outputs)},
+            )
+        onnx.checker.check_model(str(output))
+        session = ort.InferenceSession(str(output), providers=["CPUExecutionProvider"])
+        got = session.run(outputs, {"goal": goal, key: enc})
+    except Exception as exc:
+        output.unlink(missing_ok=True)  # never leave a graph behind that failed its check or cannot run
+        if opset == DEFAULT_OPSET:  # the tested opset: a bug, whose traceback is wanted
+            raise
+        from diana_lab.cli import UserError
+
+        why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+        raise UserError(
+            f"opset={opset}: this policy's graph could not be exported, checked and run at opset {opset} ({why}); "
+            f"nothing was written. Expected an opset its operators exist in: the default, {DEFAULT_OPSET}, is tested"
+        ) from exc
     with torch.no_grad():
         want = [t.numpy() for t in reference(torch.from_numpy(goal), torch.from_numpy(enc))]
-    session = ort.InferenceSession(str(output), providers=["CPUExecutionProvider"])
-    got = session.run(outputs, {"goal": goal, key: enc})
     decisive = _decisive(reference, goal, enc, key)
     err = float(np.max(np.abs(got[0] - want[0])[decisive], initial=0.0))
     logit_err = 0.0
@@ -482,63 +541,4 @@ def export_policy(
     }
     spec = policy_spec(model, sensor, action, episode, normalization, src, opset, shield)
     spec.save(sidecar_path(output))
-    return spec
-
-
-def run(cfg: Any) -> PolicySpec:
-    """``python -m diana_lab.export``: load ``cfg.policy`` with the evaluation's loader, export it."""
-    from omegaconf import OmegaConf
-
-    from diana_lab.cli import UserError, output_file
-    from diana_lab.config import to_object
-    from diana_lab.evaluation.loading import load_policy
-
-    if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
-        raise UserError(
-            "policy: expected policy=<MLflow run id | model .zip or run folder | pretrained>, e.g. "
-            "python -m diana_lab.export policy=outputs/run/model output=policy.onnx"
-        )
-    out = output_file(cfg.output)  # before loading: a path that cannot be written fails naming `output`
-    eval_cfg = to_object("eval", cfg.eval)
-    loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
-    if loaded.model is None:
-        raise UserError(f"policy={cfg.policy}: a classical baseline, not a trained policy; nothing to export")
-    train_cfg = loaded.train_cfg
-    if train_cfg is None:
-        print(
-            f"warning: no training config found with {loaded.label}; the sidecar takes sensor, action_space "
-            "and episode from this command's config -- make sure they match the training run"
-        )
-
-    def group(name: str) -> Any:
-        node = train_cfg[name] if train_cfg is not None and name in train_cfg else cfg[name]
-        return to_object(name, node)
-
-    source = {
-        "policy": str(cfg.policy),
-        "label": loaded.label,
-        "run_id": loaded.run_id,
-        "config": "training" if train_cfg is not None else "command line",
-    }
-    shield = None
-    if eval_cfg.shield.enabled:  # the runtime drives behind the slope shield too, with the training robot's size
-        from diana_lab.slope_shield import ShieldSettings
-
-        shield = dataclasses.asdict(ShieldSettings.from_config(eval_cfg.shield, group("robot")))
-    spec = export_policy(
-        loaded.model,
-        loaded.policy.vecnormalize,
-        group("sensor"),
-        group("action_space"),
-        group("episode"),
-        out,
-        int(cfg.opset),
-        source,
-        shield,
-    )
-    print(
-        f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "
-        f"{spec.encoding.shape} from a {spec.sensor.type}, {spec.action_space.shape} action space "
-        f"({spec.action_space.frame} frame); load with diana_lab.deploy.Navigator.from_files('{out}')"
-    )
     return spec

@@ -1,0 +1,242 @@
+"""``python -m diana_lab.export`` behind its Hydra entry: which config the exported files describe.
+
+The graph and its sidecar must describe what the policy was trained with, so ``sensor``, ``action_space``,
+``episode`` and ``robot`` come from its training config, and a command-line setting of those that would change
+the files is refused, naming it (:func:`check_overrides`). The slope shield comes from the training config too,
+with the command line's ``eval.shield.<key>`` settings laid over it (:func:`export_shield`): an evaluation
+without the shield only changes its numbers, a bundle without it drives without it on the rover.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from diana_lab.config import ConfigError
+from diana_lab.deploy.export import (
+    action_spec,
+    check_opset,
+    check_output,
+    encoding_spec,
+    export_policy,
+    sensor_spec,
+)
+from diana_lab.deploy.spec import PolicySpec, sidecar_path
+
+__all__ = ["PRETRAINED_PRESET", "TRAINED_GROUPS", "check_overrides", "chosen_keys", "export_shield", "run"]
+
+TRAINED_GROUPS = ("sensor", "action_space", "episode", "robot")  # what the export takes from the training config
+# the shipped policy's preset: its config predates eval.shield, the preset holds the shield its card reports
+PRETRAINED_PRESET = "+experiment=reference"
+
+
+def _flat(node: Any, prefix: str) -> dict[str, Any]:
+    """``{"group.a.b": value}`` of a config node (lists are values); ``{}`` for None."""
+    if isinstance(node, DictConfig | ListConfig):
+        node = OmegaConf.to_container(node, resolve=True)
+    if node is None:
+        return {}
+    if not isinstance(node, dict):
+        return {prefix: node}
+    out: dict[str, Any] = {}
+    for k, v in node.items():
+        out.update(_flat(v, f"{prefix}.{k}"))
+    return out
+
+
+def chosen_keys(cfg: DictConfig, overrides: Sequence[str] | None) -> set[str]:
+    """The keys of ``TRAINED_GROUPS`` and ``eval`` this export's command line set: those its ``overrides`` name
+    (a group choice, ``robot=husky``, names its whole group), and those whose value differs from
+    ``conf/export.yaml``'s, which is how a preset (``+experiment=...``) shows its choices, and all a config
+    composed outside Hydra (``overrides`` None) can show."""
+    from diana_lab.config import compose
+
+    named = [o.lstrip("+").split("=", 1)[0] for o in overrides or () if "=" in o and not o.startswith("~")]
+    default = compose([], config_name="export")
+    chosen = set()
+    for group in (*TRAINED_GROUPS, "eval"):
+        here, base = _flat(cfg.get(group), group), _flat(default.get(group), group)
+        chosen |= {
+            k
+            for k in here.keys() | base.keys()
+            if here.get(k) != base.get(k) or any(k == n or k.startswith(f"{n}.") for n in named)
+        }
+    return chosen
+
+
+def _laid_over(base: Any, node: Any, prefix: str, keys: Sequence[str]) -> dict[str, Any]:
+    """``base`` (a config node) with ``node``'s values of ``keys`` (``prefix.a.b``) laid over it; a key ``node``
+    lacks (dropped by another group option) is dropped too."""
+    out = OmegaConf.to_container(base, resolve=True) if isinstance(base, DictConfig) else dict(base or {})
+    values = _flat(node, prefix)
+    for key in keys:
+        *path, leaf = key[len(prefix) + 1 :].split(".")
+        parent = out
+        for part in path:
+            if not isinstance(parent.get(part), dict):
+                parent[part] = {}
+            parent = parent[part]
+        if key in values:
+            parent[leaf] = values[key]
+        else:
+            parent.pop(leaf, None)
+    return out
+
+
+def _shown(keys: Sequence[str], here: dict[str, Any], train: dict[str, Any]) -> str:
+    """``key=value (training value)`` for the first few of ``keys``."""
+    shown = [f"{k}={here.get(k)} (training {train.get(k, 'not set')})" for k in keys[:4]]
+    return ", ".join(shown) + (f" and {len(keys) - 4} more" if len(keys) > 4 else "")
+
+
+def export_shield(cfg: DictConfig, train_cfg: DictConfig | None, chosen: set[str], label: str) -> tuple[Any, str]:
+    """The slope shield to export (``ShieldConfig``): the training's (``eval.shield`` of its config; for the
+    shipped policy, whose config predates it, :data:`PRETRAINED_PRESET`'s) with the ``eval.shield`` keys this
+    command line chose laid over it; the command line's when no training config is known. The evaluation
+    takes the shield from the command line, where leaving it out only changes the numbers; a bundle exported
+    without the shield the policy was trained behind drives without it on the rover. With it, the line to
+    print when that differs from the command line's own (else "")."""
+    from diana_lab.config import compose, to_object
+
+    here = to_object("eval", cfg.eval).shield
+    if train_cfg is not None and OmegaConf.select(train_cfg, "eval.shield", default=None) is not None:
+        base, source = train_cfg.eval.shield, f"policy {label}'s training config"
+    elif train_cfg is not None and label == "pretrained":
+        base, source = compose([PRETRAINED_PRESET]).eval.shield, f"{PRETRAINED_PRESET}, the shipped policy's preset"
+    else:
+        return here, ""
+    keys = sorted(k for k in chosen if k.startswith("eval.shield."))
+    node = OmegaConf.to_container(cfg.eval, resolve=True)
+    node["shield"] = {**node["shield"], **_laid_over(base, cfg.eval.shield, "eval.shield", keys)}
+    shield = to_object("eval", node).shield
+
+    def settings(s: Any) -> Any:
+        return dataclasses.asdict(s) if s.enabled else None
+
+    if settings(shield) == settings(here):
+        return shield, ""
+    given = f", with {', '.join(keys)} from the command line" if keys else ""
+    on = shield.enabled
+    return shield, (
+        f"eval.shield: {'on' if on else 'off'} as in {source}{given}: the sidecar {'carries' if on else 'has'} "
+        f"{'the' if on else 'no'} slope shield (eval.shield.enabled={str(not on).lower()} exports "
+        f"{'without' if on else 'with'} it)"
+    )
+
+
+def check_overrides(cfg: DictConfig, train_cfg: DictConfig, chosen: set[str], shield: Any, label: str) -> None:
+    """Refuse command-line settings of ``TRAINED_GROUPS`` that would change the exported files: the export takes
+    those groups from the training config, since the files must describe what the policy was trained with,
+    and a replaced setting must not pass unseen. Settings that do not reach the files (the simulator's, a robot
+    without a shield to size) are named in one line."""
+    from diana_lab.cli import UserError
+    from diana_lab.config import to_object
+    from diana_lab.slope_shield import ShieldSettings
+
+    def exported(group: str, node: Any) -> Any:
+        obj = to_object(group, node)
+        if group == "sensor":
+            return sensor_spec(obj), encoding_spec(obj)
+        if group == "action_space":
+            return action_spec(obj)
+        if group == "episode":
+            return float(obj.distance_scale)
+        return ShieldSettings.from_config(shield, obj) if shield.enabled else None  # robot: the shield's size
+
+    unused = []
+    for group in TRAINED_GROUPS:
+        if group not in train_cfg:
+            continue  # the command line's is used
+        here, train = _flat(cfg.get(group), group), _flat(train_cfg[group], group)
+        keys = sorted(k for k in chosen if k.startswith(f"{group}.") and here.get(k) != train.get(k))
+        if not keys:
+            continue
+        name = f"{group}.name"
+        # another option of the group (robot=husky): named as chosen, not key by key
+        shown = f"{group}={here.get(name)} (training {train.get(name)})" if name in keys else _shown(keys, here, train)
+        want = exported(group, train_cfg[group])
+        try:
+            changed = exported(group, _laid_over(train_cfg[group], cfg.get(group), group, keys)) != want
+        except ConfigError:  # settings that do not fit the training's option
+            changed = True
+        if changed:
+            raise UserError(
+                f"{shown}: policy {label} was trained with other {group} settings, and the "
+                f"export takes sensor, action_space, episode and robot from its training config (the exported files "
+                f"must describe what the policy was trained with); expected no such overrides: drop them to export "
+                f"with the training's"
+            )
+        unused.append(shown)
+    if unused:
+        print(f"note: not in the exported files, so not checked against policy {label}'s training: {'; '.join(unused)}")
+
+
+def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
+    """``python -m diana_lab.export``: load ``cfg.policy`` with the evaluation's loader, export it. ``overrides``:
+    the command line's (Hydra's ``overrides.task``), which tell a setting chosen there from a default."""
+    from diana_lab.cli import UserError, output_file
+    from diana_lab.config import to_object
+    from diana_lab.config.evaluation import ShieldConfig
+    from diana_lab.evaluation.loading import load_policy
+
+    if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
+        raise UserError(
+            "policy: expected policy=<MLflow run id | model .zip or run folder | pretrained>, e.g. "
+            "python -m diana_lab.export policy=outputs/run/model output=policy.onnx"
+        )
+    out = output_file(cfg.output)  # before loading: a path that cannot be written fails naming `output`
+    check_output(out)
+    check_opset(int(cfg.opset))
+    chosen = chosen_keys(cfg, overrides)
+    # loaded without the shield: the export takes the bare policy, and decides the shield once it knows the training's
+    eval_cfg = dataclasses.replace(to_object("eval", cfg.eval), shield=ShieldConfig())
+    loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
+    if loaded.model is None:
+        raise UserError(f"policy={cfg.policy}: a classical baseline, not a trained policy; nothing to export")
+    train_cfg = loaded.train_cfg
+    if train_cfg is None:
+        print(
+            f"warning: no training config found with {loaded.label}; the sidecar takes sensor, action_space, "
+            "episode, robot and eval.shield from this command's config -- make sure they match the training run"
+        )
+    shield_cfg, shield_note = export_shield(cfg, train_cfg, chosen, loaded.label)
+    if train_cfg is not None:
+        check_overrides(cfg, train_cfg, chosen, shield_cfg, loaded.label)
+    if shield_note:
+        print(shield_note)
+
+    def group(name: str) -> Any:
+        node = train_cfg[name] if train_cfg is not None and name in train_cfg else cfg[name]
+        return to_object(name, node)
+
+    source = {
+        "policy": str(cfg.policy),
+        "label": loaded.label,
+        "run_id": loaded.run_id,
+        "config": "training" if train_cfg is not None else "command line",
+    }
+    shield = None
+    if shield_cfg.enabled:  # the runtime drives behind the slope shield too, with the training robot's size
+        from diana_lab.slope_shield import ShieldSettings
+
+        shield = dataclasses.asdict(ShieldSettings.from_config(shield_cfg, group("robot")))
+    spec = export_policy(
+        loaded.model,
+        loaded.policy.vecnormalize,
+        group("sensor"),
+        group("action_space"),
+        group("episode"),
+        out,
+        int(cfg.opset),
+        source,
+        shield,
+    )
+    print(
+        f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "
+        f"{spec.encoding.shape} from a {spec.sensor.type}, {spec.action_space.shape} action space "
+        f"({spec.action_space.frame} frame); load with diana_lab.deploy.Navigator.from_files('{out}')"
+    )
+    return spec
