@@ -246,7 +246,8 @@ class TrainingRun:
             print(f"\ninterrupted at {ckpt.steps} steps: checkpoint {ckpt.model}", file=sys.stderr)
 
     def finish(self) -> dict[str, Any]:
-        """Final checkpoint and model, the final evaluation (files + ``eval_*``), the best model if needed."""
+        """Final checkpoint and model, the final evaluation (files + ``eval_*``; with ``eval.sensor_noise``, once
+        more per level in ``eval/sensor_noise/`` + ``eval_noise_<level>_*``), the best model if needed."""
         assert self.model is not None and self.checkpoints is not None and self.evaluator is not None
         self.checkpoints.save()
         for path in save_model(self.model, self.run_dir / "model"):
@@ -261,6 +262,14 @@ class TrainingRun:
         policy = sb3_policy(self.model, self.model.get_vec_normalize_env(), self.eval_cfg)
         summary = evaluate(policy, env, self.eval_cfg, out)
         self.tracker.log_metrics(eval_metrics(summary), self.model.num_timesteps)
+        if self.eval_cfg.sensor_noise:  # as python -m diana_lab.evaluate does: once per level, the same metric names
+            from diana_lab.evaluation.core import sweep_sensor_noise
+
+            levels = sweep_sensor_noise(policy, env, self.eval_cfg, out / "sensor_noise")
+            for level, level_summary in levels.items():
+                self.tracker.log_metrics(
+                    eval_metrics(level_summary, f"eval_noise_{level:g}_"), self.model.num_timesteps
+                )
         self.tracker.log_artifacts(out, "eval")
         spl = float(summary.get("spl", math.nan))
         if math.isfinite(spl) and spl > self.evaluator.best_spl:  # e.g. no periodic evaluation ran
@@ -324,6 +333,11 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
     if resume is not None and resume.algo and resume.algo != typed["algo"].name:
         raise UserError(
             f"train.resume: {resume.source} was trained with algo={resume.algo}; pass algo={resume.algo} to continue it"
+        )
+    if typed["eval"].sensor_noise and not train_cfg.final_eval:
+        raise C.ConfigError(
+            f"eval.sensor_noise={list(typed['eval'].sensor_noise)}: sweeps the final evaluation, which "
+            "train.final_eval=false turns off; drop one of them"
         )
     imitation = train_cfg.imitation
     if imitation.enabled and imitation.expert == "astar_seen":  # the expert reads the policy's own sensor map

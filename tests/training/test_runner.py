@@ -97,6 +97,21 @@ def test_resume_in_another_env_is_refused_or_reported_naming_the_keys(tmp_path, 
     assert "reward.terms.goal.weight: training 10.0, here 20.0" in tags["resume_config_changes"]
 
 
+def test_eval_sensor_noise_sweeps_the_final_evaluation(tmp_path, capsys):
+    """It used to be ignored by training without a word."""
+    base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=64", "eval.every=0", "eval.episodes=1"]
+    assert run_in_process([*base, "eval.sensor_noise=[0,1]", *store_args(tmp_path, "first")]) == 0
+    client, (run,) = runs(tmp_path)
+    for level in ("0", "1"):
+        assert f"eval_noise_{level}_success_rate" in run.data.metrics
+    names = {a.path for a in client.list_artifacts(run.info.run_id, "eval/sensor_noise")}
+    assert {"eval/sensor_noise/sensor_noise.csv", "eval/sensor_noise/noise_1"} <= names
+    capsys.readouterr()
+    off = ["eval.sensor_noise=[1]", "train.final_eval=false", *store_args(tmp_path, "second")]
+    assert run_in_process([*base, *off]) == 2
+    assert "eval.sensor_noise=[1.0]: sweeps the final evaluation" in capsys.readouterr().err
+
+
 def test_multirun_gives_one_run_per_job(tmp_path):
     args = [
         "-m",
