@@ -68,8 +68,14 @@ class EpisodeSampler:
         return c.start_max_distance + frac * (self.cfg.max_distance - c.start_max_distance)
 
     def sample(
-        self, rng: np.random.Generator, min_distance: float | None = None, max_distance: float | None = None
+        self,
+        rng: np.random.Generator,
+        min_distance: float | None = None,
+        max_distance: float | None = None,
+        keys: str = "episode",
     ) -> Episode:
+        """A start and goal ``min_distance..max_distance`` apart (default: the ``episode`` config's); ``keys``:
+        the config group the distances came from, named when no such pair exists."""
         lo = self.cfg.min_distance if min_distance is None else min_distance
         hi = self.max_distance() if max_distance is None else max_distance
         for _ in range(MAX_TRIES):
@@ -81,7 +87,7 @@ class EpisodeSampler:
                 self.episodes_drawn += 1
                 return Episode(start.copy(), float(rng.uniform(-math.pi, math.pi)), goal.copy())
         raise ConfigError(
-            f"episode.min_distance/max_distance: no start/goal pair {lo}..{hi} m apart in one "
+            f"{keys}.min_distance/max_distance: no start/goal pair {lo}..{hi} m apart in one "
             f"traversable region of world '{self.world.name}' after {MAX_TRIES} tries; "
             "lower the distances or use a larger world"
         )

@@ -73,7 +73,7 @@ def make_suite(env: gym.Env, n: int, seed: int, min_distance: float, max_distanc
     try:
         for _ in range(n):
             for _ in range(MAX_REDRAWS):
-                ep = sampler.sample(rng, min_distance, max_distance)
+                ep = sampler.sample(rng, min_distance, max_distance, keys="eval")
                 if reachable_goal(env, ep.goal):
                     break
             else:

@@ -32,3 +32,16 @@ def test_every_policy_meets_the_same_episodes(flat_env):
     b = run_suite(AStarOracle(), flat_env, suite)[cols]
     assert a.equals(b)
     np.testing.assert_array_equal(a[["start_x", "start_y"]].to_numpy(), [ep.start for ep in suite])
+
+
+def test_impossible_suite_distances_name_the_eval_keys(flat_env):
+    """The suite's distances are ``eval.*``: the error used to name ``episode.min_distance``, which the user never
+    set; a training episode draw still names ``episode``."""
+    import pytest
+
+    from diana_lab.config import ConfigError
+
+    with pytest.raises(ConfigError, match=r"^eval\.min_distance/max_distance: no start/goal pair 50\.0\.\.60\.0 m"):
+        make_suite(flat_env, 2, 0, 50.0, 60.0)
+    with pytest.raises(ConfigError, match=r"^episode\.min_distance/max_distance"):
+        flat_env.unwrapped.sampler.sample(np.random.default_rng(0), 50.0, 60.0)
