@@ -202,10 +202,16 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     import mlflow
     from mlflow.exceptions import MlflowException
 
-    from diana_lab.tracking.mlflow_run import resolve_uri
+    from diana_lab.tracking.mlflow_run import resolve_uri, sqlite_path
 
     uri = OmegaConf.select(cfg, "tracking.uri", default=None)
     if uri:
+        db = sqlite_path(resolve_uri(str(uri)))
+        if db is not None and not db.is_file():  # MLflow would create an empty store to look in
+            raise UserError(
+                f"policy={run_id}: looks like an MLflow run id, but tracking.uri={uri} has no store at '{db}'; "
+                "expected the tracking.uri the run was trained with (or a model path)"
+            )
         mlflow.set_tracking_uri(resolve_uri(str(uri)))
     with tempfile.TemporaryDirectory(prefix=f"diana_eval_{run_id[:8]}_") as tmp:
         dst = Path(tmp)  # everything is in memory once loaded: the download need not outlive this call

@@ -132,3 +132,11 @@ def test_a_checkpoint_loads_its_own_observation_statistics_and_a_normalised_run_
     (run / "checkpoints" / "rl_model_vecnormalize_8_steps.pkl").unlink()
     with pytest.raises(UserError, match=r"algo\.normalize=true.*rl_model_vecnormalize_8_steps\.pkl"):
         load_policy(str(run / "checkpoints" / "rl_model_8_steps.zip"), cfg, to_object("eval", cfg.eval))
+
+
+def test_a_run_id_in_a_store_that_does_not_exist_is_refused_without_creating_it(tmp_path):
+    db = tmp_path / "mlflow.db"
+    cfg = compose([f"tracking.uri=sqlite:///{db}"])
+    with pytest.raises(UserError, match=r"policy=0123456789abcdef0123456789abcdef: .*tracking\.uri=.*has no store"):
+        load_policy("0123456789abcdef0123456789abcdef", cfg, to_object("eval", cfg.eval))
+    assert not db.exists()

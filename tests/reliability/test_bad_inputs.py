@@ -198,7 +198,7 @@ ROWS = [
         "evaluate-unknown-run-id",
         EVAL,
         (f"policy={RUN_ID}", *EVAL_ARGS),
-        (f"policy={RUN_ID}", "not found", "tracking.uri"),
+        (f"policy={RUN_ID}", "tracking.uri", "has no store at"),  # and creates none
         slow=True,
     ),
     Bad(
