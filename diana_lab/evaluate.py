@@ -143,6 +143,9 @@ def run(cfg: DictConfig, out_dir: Path, dynamics_keys: Sequence[str] = ()) -> di
     loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
     if loaded.note:
         print(f"{loaded.label}: {loaded.note}")
+    trained_robot = OmegaConf.select(loaded.train_cfg, "robot.name", default=None) if loaded.train_cfg else None
+    if trained_robot is not None and trained_robot != cfg.robot.name:  # a transfer test, allowed, but said
+        print(f"note: {loaded.label} was trained on robot={trained_robot}; evaluating it on robot={cfg.robot.name}")
     env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg, dynamics_keys))
     try:
         if loaded.model is not None:

@@ -150,3 +150,11 @@ def test_the_pretrained_policy_on_another_action_space_exits_2_naming_the_key(tm
     assert proc.returncode == 2, proc.stderr
     assert "action_space.headings: training 32, here 64" in proc.stderr
     assert "+experiment=reference" not in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_evaluating_on_another_robot_than_the_trainings_is_said(tmp_path):
+    proc = evaluate_cli(
+        tmp_path / "run", "policy=pretrained", "+experiment=reference", "robot=husky", *TINY, "eval.episodes=1"
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "trained on robot=jackal; evaluating it on robot=husky" in proc.stdout
