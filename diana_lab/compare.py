@@ -9,8 +9,9 @@ writes ``runs.csv``/``runs.md`` (one row per run: chosen options, seed, metrics)
     python -m diana_lab.compare 'group_by=[algo,reward]' 'metrics=[eval_spl,eval_tipover_rate]' output=cmp
     python -m diana_lab.compare tracking.uri=sqlite:///runs/mlflow.db 'experiments=[diana_lab,sweep]'
 
-No run matching (or a store, experiment or filter that does not exist) prints one paragraph naming the
-filter and exits with status 2. The metric names are in ``docs/metrics.md``.
+No run matching (or a store, experiment or filter that does not exist), a ``group_by`` tag no selected run
+carries, or ``variants``/``include_evaluations`` other than true/false print one paragraph naming the key and
+exit with status 2. The metric names are in ``docs/metrics.md``.
 """
 
 from __future__ import annotations
@@ -21,8 +22,11 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from diana_lab.cli import hydra_app
+from diana_lab.config.validation import boolean
 
 __all__ = ["main"]
+
+FLAGS = ("variants", "include_evaluations")
 
 
 @hydra_app(config_name="compare")
@@ -30,6 +34,8 @@ def main(cfg: DictConfig) -> None:
     from diana_lab.comparison import compare_runs, write_report
     from diana_lab.comparison.report import groups_markdown
 
+    for key in FLAGS:  # bool("no") is True: a word that is not true/false must not switch an option on
+        boolean(key, cfg[key])
     experiments = [str(e) for e in cfg.experiments] or [str(cfg.tracking.experiment)]
     c = compare_runs(
         str(cfg.tracking.uri),
@@ -38,8 +44,8 @@ def main(cfg: DictConfig) -> None:
         metrics=[str(m) for m in cfg.metrics],
         curves=[str(m) for m in cfg.curves],
         group_by=[str(g) for g in cfg.group_by],
-        variants=bool(cfg.variants),
-        include_evaluations=bool(cfg.include_evaluations),
+        variants=cfg.variants,
+        include_evaluations=cfg.include_evaluations,
     )
     for metric, close in c.missing_metrics.items():
         hint = f" (did you mean {', '.join(close)}?)" if close else ""

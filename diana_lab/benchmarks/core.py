@@ -26,6 +26,8 @@ import numpy as np
 import yaml
 from omegaconf import DictConfig, OmegaConf, open_dict
 
+from diana_lab.config.validation import boolean, positive_int
+
 __all__ = [
     "MEASUREMENTS",
     "BenchContext",
@@ -33,6 +35,7 @@ __all__ = [
     "Measurement",
     "Target",
     "figure_from_samples",
+    "flag",
     "measurement",
     "repeat",
     "select",
@@ -142,6 +145,11 @@ class Stopwatch:
 # ----------------------------------------------------------------------------------------------- context
 
 
+def flag(cfg: DictConfig, key: str) -> bool:
+    """A true/false option (absent: false), strictly (:func:`~diana_lab.config.validation.boolean`)."""
+    return boolean(key, cfg.get(key, False))
+
+
 class BenchContext:
     """The composed config, the mode (quick or full) and what several measurements share (world, poses).
 
@@ -155,11 +163,11 @@ class BenchContext:
         self.cfg = cfg.copy()
         with open_dict(self.cfg):
             self.cfg.sensor.nthreads = 1
-        self.quick = bool(cfg.get("quick", False))
-        default_repeats = 3 if self.quick else 7
-        self.repeats = int(cfg.get("repeats") or default_repeats)
-        if self.repeats < 1:
-            raise ValueError(f"repeats: expected a positive integer, got {self.repeats}")
+        self.quick = flag(cfg, "quick")
+        repeats = cfg.get("repeats")
+        if repeats is not None:  # 0 must not mean "the default", nor 2.7 quietly become 2
+            positive_int("repeats", repeats)
+        self.repeats: int = repeats or (3 if self.quick else 7)
         self.seed = int(cfg.get("seed", 0))
         self.backend = str(self.cfg.sensor.get("backend", "heightfield"))
 

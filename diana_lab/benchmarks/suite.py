@@ -11,16 +11,16 @@ import datetime as dt
 import sys
 import time
 import traceback
-from pathlib import Path
 from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
 # importing the measurement modules registers them (in this order: the order of the table)
 from diana_lab.benchmarks import deploy, dynamics, envs, sensing, training  # noqa: F401
-from diana_lab.benchmarks.core import MEASUREMENTS, BenchContext, Figure, select
+from diana_lab.benchmarks.core import MEASUREMENTS, BenchContext, Figure, flag, select
 from diana_lab.benchmarks.machine import library_versions, load_average, machine_info, pin_threads
 from diana_lab.benchmarks.report import SCHEMA_VERSION, figures_table, write_json
+from diana_lab.cli import output_file
 
 __all__ = ["ORDER", "PROFILE", "run"]
 
@@ -70,16 +70,22 @@ def _measure(ctx: BenchContext, name: str) -> list[Figure]:
 
 
 def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
-    """Measure, print the table, write ``cfg.output`` (when set); returns the result document."""
+    """Measure, print the table, write ``cfg.output`` (when set); returns the result document.
+
+    Every option is checked before the first measurement, the output paths included: minutes of figures must
+    not be lost to a typo or to ``output`` naming a folder."""
     start, started = time.perf_counter(), dt.datetime.now(dt.UTC)
+    ctx = BenchContext(cfg)
     only = _only(cfg)
-    want_profile = bool(cfg.get("profile", False)) or (only is not None and PROFILE in only)
+    want_profile = flag(cfg, "profile") or (only is not None and PROFILE in only)
     names_only = None if only is None else [k for k in only if k != PROFILE]
     selected = [] if names_only == [] else select(names_only)
     ordered = [n for n in ORDER if n in {m.name for m in selected}]
     ordered += [m.name for m in selected if m.name not in ordered]
+    output = output_file(cfg.output) if cfg.get("output") else None
+    out = cfg.get("profile_output")
+    profile_path = output_file(out, "profile_output") if want_profile and out else None
 
-    ctx = BenchContext(cfg)
     machine = machine_info()
     threads = pin_threads()
     mode = "quick" if ctx.quick else "full"
@@ -93,12 +99,9 @@ def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
         for fig in _measure(ctx, name):
             figures[fig.key] = fig.to_json()
 
-    profile_path = None
     if want_profile:
         from diana_lab.benchmarks.profiling import profile_env_step
 
-        out = cfg.get("profile_output")
-        profile_path = Path(str(out)).expanduser() if out else None
         print(profile_env_step(ctx, profile_path))
 
     machine["load_avg_after"] = load_average()
@@ -128,8 +131,7 @@ def run(cfg: DictConfig, command: str | None = None) -> dict[str, Any]:
         f"\nload average before {machine['load_avg_before']}, after {machine['load_avg_after']} "
         f"({machine['cores']} cores, {machine['cpu_model']}); {result['wall_time_s']} s"
     )
-    if cfg.get("output"):
-        path = Path(str(cfg.output)).expanduser()
-        write_json(result, path)
-        print(f"wrote {path}")
+    if output is not None:
+        write_json(result, output)
+        print(f"wrote {output}")
     return result

@@ -69,6 +69,7 @@ def compare_runs(
     """Load the runs matching ``filter_string`` and compare them (see :mod:`diana_lab.comparison.groups`)."""
     group_by, metrics, curves = tuple(group_by), tuple(metrics), tuple(curves)
     found = load_runs(uri, experiments, filter_string, include_evaluations)
+    _check_group_by(found, group_by)
     found, skipped = _with_metrics(found, (*metrics, *curves), filter_string)
     raw = assign_groups(found, group_by, variants)
     table = runs_table(raw, group_by, metrics)
@@ -85,6 +86,27 @@ def compare_runs(
         missing_metrics=_missing(raw, (*metrics, *curves)),
         skipped=skipped,
     )
+
+
+def _check_group_by(df: pd.DataFrame, group_by: Sequence[str]) -> None:
+    """A ``group_by`` name that no selected run is tagged with (a typo, a config key) would put every run in one
+    group without a word. Option groups are exempt: runs logged before their tag existed, or without a preset
+    (``experiment``), lack it and rightly share the empty option."""
+    tags = sorted(c[len("tags.") :] for c in df.columns if c.startswith("tags.") and df[c].notna().any())
+    unknown = [g for g in group_by if g not in tags]
+    if not unknown:
+        return
+    from diana_lab.training.context import TAG_GROUPS  # only here: it imports the training stack
+
+    unknown = [g for g in unknown if g not in TAG_GROUPS]
+    if unknown:
+        params = [g for g in unknown if f"params.{g}" in df]
+        hint = f" ({', '.join(params)}: config values, not tags; variants=true splits groups by them)" if params else ""
+        available = ", ".join(t for t in tags if "." not in t)  # not MLflow's bookkeeping (mlflow.runName, ...)
+        raise ComparisonError(
+            f"group_by={list(group_by)}: no selected run has the tag(s) {', '.join(unknown)}{hint}; "
+            f"the tags of these runs: {available or 'none'}"
+        )
 
 
 def _with_metrics(df: pd.DataFrame, wanted: Sequence[str], filter_string: str) -> tuple[pd.DataFrame, list[str]]:

@@ -15,6 +15,7 @@ from omegaconf import MISSING
 from diana_lab.config.store import register
 from diana_lab.config.validation import (
     ConfigError,
+    boolean,
     in_range,
     length,
     non_negative,
@@ -68,8 +69,7 @@ class ElevationMapConfig:
         positive_int(f"{key}.nb_neighbors", self.nb_neighbors)
         positive(f"{key}.std_ratio", self.std_ratio)
         positive(f"{key}.memory_radius", self.memory_radius)
-        if not isinstance(self.memory, bool):
-            raise ConfigError(f"{key}.memory: expected true or false, got {self.memory!r}")
+        boolean(f"{key}.memory", self.memory)
         rows, cols = self.shape
         if rows * cols > 512 * 512:
             raise ConfigError(

@@ -17,6 +17,15 @@ PRUNERS = ("median", "successive_halving", "none")
 DIRECTIONS = ("maximize", "minimize")
 
 
+MAX_SEED = 2**32 - 1  # numpy's (and so SB3's and Optuna's samplers') seeds are 32-bit unsigned
+
+
+def check_seed(key: str, value: object) -> None:
+    """A seed numpy accepts: checked before the study starts, since a trial would fail only inside training."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_SEED:
+        raise ConfigError(f"{key}: expected an integer from 0 to 2**32 - 1, got {value!r}")
+
+
 def _positive_int_or_none(key: str, value: int | None) -> None:
     if value is not None and (isinstance(value, bool) or not isinstance(value, int) or value <= 0):
         raise ConfigError(f"{key}: expected a positive integer (or null for the sweep file's value), got {value!r}")
@@ -71,6 +80,10 @@ class SweepConfig:
             )
         if isinstance(self.top, bool) or self.top <= 0:
             raise ConfigError(f"sweep.top: expected a positive integer, got {self.top!r}")
+        for i, seed in enumerate(self.seeds):
+            check_seed(f"sweep.seeds[{i}]", seed)
+        if self.sampler_seed is not None:
+            check_seed("sweep.sampler_seed", self.sampler_seed)
         if len(set(self.seeds)) != len(self.seeds):
             raise ConfigError(f"sweep.seeds: expected distinct seeds, got {list(self.seeds)!r}")
 

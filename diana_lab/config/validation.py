@@ -10,6 +10,14 @@ class ConfigError(ValueError):
     """A config value that cannot work; the message names the key and what was expected."""
 
 
+def boolean(key: str, value: object) -> bool:
+    """A true/false option, returned: ``bool("no")`` is True, so anything but a real bool is refused, naming
+    ``key``, rather than switching the option on (a schema-less key keeps the string Hydra was given)."""
+    if not isinstance(value, bool):
+        raise ConfigError(f"{key}: expected true or false, got {value!r}")
+    return value
+
+
 def positive(key: str, value: float) -> None:
     if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
         raise ConfigError(f"{key}: expected a positive number, got {value!r}")

@@ -28,7 +28,7 @@ from optuna.distributions import CategoricalDistribution, FloatDistribution, Int
 from diana_lab.sweeps.compose import compose_run
 from diana_lab.sweeps.mlflow_runs import SweepClient
 from diana_lab.sweeps.space import Param, format_value
-from diana_lab.sweeps.spec import SweepSpec
+from diana_lab.sweeps.spec import BUDGET_KEYS, SweepSpec
 from diana_lab.sweeps.study import ERROR_ATTR, INTERRUPTED_ATTR, WORKER_ATTR
 from diana_lab.training.context import RunContext, StopRun
 from diana_lab.training.signals import raise_pending
@@ -75,14 +75,8 @@ class TrialPlan:
     tags: dict[str, str] = field(default_factory=dict)
 
     def budget(self) -> list[str]:
-        s, out = self.spec, ["train.final_eval=true"]
-        if s.timesteps is not None:
-            out.append(f"train.total_timesteps={s.timesteps}")
-        if s.eval_episodes is not None:
-            out.append(f"eval.episodes={s.eval_episodes}")
-        if s.eval_every is not None:
-            out.append(f"eval.every={s.eval_every}")
-        return out
+        values = {key: getattr(self.spec, name) for name, key in BUDGET_KEYS.items()}
+        return ["train.final_eval=true", *(f"{key}={v}" for key, v in values.items() if v is not None)]
 
     def overrides(self, values: dict[str, Any], seed: int | None = None) -> list[str]:
         """The override line of one training run: base, command line, sampled params, budget, seed."""

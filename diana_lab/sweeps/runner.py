@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 import sys
@@ -23,16 +24,18 @@ from typing import Any
 
 import optuna
 from omegaconf import DictConfig, OmegaConf
+from optuna.distributions import FloatDistribution
 
 from diana_lab import config as C
 from diana_lab.config.run import TrackingConfig
-from diana_lab.config.sweep import SweepConfig
+from diana_lab.config.sweep import SweepConfig, check_seed
 from diana_lab.config.validation import ConfigError
 from diana_lab.sweeps import report
 from diana_lab.sweeps.compose import compose_run, override_keys
 from diana_lab.sweeps.mlflow_runs import PARENT_ATTR, ParentRun, SweepClient
 from diana_lab.sweeps.objective import Objective, TrialPlan
-from diana_lab.sweeps.spec import SweepSpec, load_spec
+from diana_lab.sweeps.space import Param
+from diana_lab.sweeps.spec import BUDGET_KEYS, SweepSpec, load_spec
 from diana_lab.sweeps.storage import dashboard_command, display_url, make_storage, resolve_storage
 from diana_lab.sweeps.study import (
     TrialBudget,
@@ -84,24 +87,65 @@ def sweep_overrides(overrides: tuple[str, ...] | list[str]) -> tuple[str, ...]:
     return tuple(o for o in overrides if not o.lstrip("+~").startswith(("sweep.", "sweep=")))
 
 
-def _check(spec: SweepSpec, params: tuple, cli: tuple[str, ...]) -> TrackingConfig:
-    """Fail fast on a bad base override, an unknown searched key or a low end the schema rejects."""
+def _corners(params: tuple[Param, ...]) -> list[dict[str, Any]]:
+    """The searched values the start-up check composes: every key at its low end, then at its high end; a
+    categorical key steps through its choices (so there are as many corners as the longest list of choices)."""
+    ends = [p.ends() for p in params]
+    return [{p.key: e[min(i, len(e) - 1)] for p, e in zip(params, ends)} for i in range(max(map(len, ends)))]
+
+
+def _rejected(spec: SweepSpec, params: tuple[Param, ...], values: dict[str, Any], exc: ConfigError) -> ConfigError:
+    """The error for a corner the config rejects, naming the file, the line and the searched key it blames."""
+    text = str(exc)
+    p = next((p for p in params if text.startswith(p.key) or f"override {p.key}=" in text), None)
+    if p is None:  # e.g. two searched keys that do not fit together
+        return ConfigError(f"{spec.where()}: with {' '.join(q.override(values[q.key]) for q in params)}: {exc}")
+    hint = ""
+    if isinstance(p.distribution, FloatDistribution) and "to Integer" in text:
+        hint = " (an integer key: search it with int(interval(a, b)) or range(a, b))"
+    return ConfigError(
+        f"{spec.where(p.key)}: params.{p.key}: {p.expression} reaches {values[p.key]!r}, which the config rejects: "
+        f"{exc}{hint}"
+    )
+
+
+def _check(spec: SweepSpec, params: tuple[Param, ...], cli: tuple[str, ...]) -> TrackingConfig:
+    """Fail fast on a bad base override, an unknown searched key, a bad seed, or an end of a searched range (or a
+    choice) the schema rejects: otherwise each trial would fail inside training and the sweep exit 0."""
     plan = TrialPlan(spec=spec, params=params, cli=cli, seeds=(), out_dir=Path("."), study_name="check")
     try:
         cfg, _ = compose_run(plan.overrides({}))
+        check_seed("seed", cfg.get("seed"))
     except ConfigError as exc:
         raise ConfigError(f"{spec.where()}: base overrides and command line: {exc}") from exc
     for p in params:
         if OmegaConf.select(cfg, p.key, default=_ABSENT, throw_on_missing=False) is _ABSENT:
             raise ConfigError(f"{spec.where(p.key)}: params.{p.key}: no such key in the composed config")
-    low = {p.key: p.low_value() for p in params}
-    try:
-        cfg, _ = compose_run(plan.overrides(low))
-        typed = C.validate(cfg, [g for g in RUN_GROUPS if g in cfg])
-    except ConfigError as exc:
-        key = next((p.key for p in params if str(exc).startswith(p.key)), None)
-        raise ConfigError(f"{spec.where(key)}: with every searched key at its low end: {exc}") from exc
+    for values in _corners(params):
+        try:
+            cfg, _ = compose_run(plan.overrides(values))
+            typed = C.validate(cfg, [g for g in RUN_GROUPS if g in cfg])
+        except ConfigError as exc:
+            raise _rejected(spec, params, values, exc) from exc
     return typed["tracking"]
+
+
+def _command_line_budget(spec: SweepSpec, settings: SweepConfig, fixed: set[str]) -> SweepSpec:
+    """The command line's ``train.total_timesteps``, ``eval.episodes`` and ``eval.every`` win over the sweep file's
+    budget, as every other override given there does (the budget is applied after it, so it would silently
+    replace them). Given together with the ``sweep.*`` key that sets the same budget they disagree: an error."""
+    dropped: dict[str, None] = {}
+    for field_name, key in BUDGET_KEYS.items():
+        if key not in fixed:
+            continue
+        if getattr(settings, field_name) is not None:
+            raise ConfigError(f"{key} and sweep.{field_name} both set the trials' budget; give one of them")
+        if getattr(spec, field_name) is not None:
+            print(f"note: {key} is set on the command line, so budget.{field_name} is not used", file=sys.stderr)
+        dropped[field_name] = None
+    if settings.seeds and "seed" in fixed:
+        raise ConfigError("seed and sweep.seeds both set the trials' training seeds; give one of them")
+    return dataclasses.replace(spec, **dropped)
 
 
 def _parent_run(
@@ -157,6 +201,7 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
     spec = load_spec(settings.name).with_settings(settings)
     cli = sweep_overrides(overrides)
     fixed = override_keys(cli)
+    spec = _command_line_budget(spec, settings, fixed)
     params = tuple(p for p in spec.params if p.key not in fixed)
     if not params:
         raise ConfigError(f"{spec.where()}: every searched key is fixed on the command line; nothing to search")

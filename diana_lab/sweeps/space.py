@@ -76,10 +76,11 @@ class Param:
             value = int(value)
         return f"{self.key}={format_value(value)}"
 
-    def low_value(self) -> Any:
-        """A representative value (the low end, or the first choice): composing it checks the key and type."""
+    def ends(self) -> tuple[Any, ...]:
+        """The values that bound what a trial can get -- low and high end, or every choice: composing each
+        checks the key, its type and its range before a trial does (a bad high end would fail only there)."""
         d = self.distribution
-        return d.choices[0] if isinstance(d, CategoricalDistribution) else d.low
+        return tuple(d.choices) if isinstance(d, CategoricalDistribution) else (d.low, d.high)
 
 
 def _choices(override: Override) -> tuple[list[Any], tuple[str, ...]]:

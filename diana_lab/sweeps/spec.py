@@ -26,7 +26,7 @@ from diana_lab.config.validation import ConfigError
 from diana_lab.evaluation.metrics import SUMMARY_KEYS
 from diana_lab.sweeps.space import Param, SpaceError, parse_entry
 
-__all__ = ["METRICS", "SWEEPS_DIR", "SweepSpec", "available", "find_sweep", "load_spec"]
+__all__ = ["BUDGET_KEYS", "METRICS", "SWEEPS_DIR", "SweepSpec", "available", "find_sweep", "load_spec"]
 
 SWEEPS_DIR = Path(__file__).resolve().parents[2] / "sweeps"
 METRICS = tuple(k for k in SUMMARY_KEYS if k != "episodes")  # what an objective can be
@@ -38,6 +38,8 @@ SECTIONS = {
     "params": None,
 }
 DEFAULTS = {"metric": "spl", "direction": "maximize", "n_trials": 20}
+# budget entry -> the config key it sets in every trial
+BUDGET_KEYS = {"timesteps": "train.total_timesteps", "eval_episodes": "eval.episodes", "eval_every": "eval.every"}
 
 
 @dataclass(frozen=True)
@@ -129,15 +131,21 @@ def _positive_int(value: Any) -> bool:
 def load_spec(name: str) -> SweepSpec:
     """Read and check a sweep file (see the module docstring); every error names the file and line."""
     path = find_sweep(name)
-    text = path.read_text()
     shown = _display(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:  # a ValueError that would name neither the file nor what was expected
+        raise ConfigError(f"{shown}: not a text file (expected a YAML sweep file, see docs/sweeps.md)") from exc
+    except OSError as exc:
+        raise ConfigError(f"{shown}: cannot read the sweep file ({exc.strerror or exc})") from exc
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f":{mark.line + 1}" if mark is not None else ""
-        raise ConfigError(f"{shown}{line}: not valid YAML ({getattr(exc, 'problem', None) or exc})") from exc
+        why = str(getattr(exc, "problem", None) or exc).strip().splitlines()[0]
+        raise ConfigError(f"{shown}{line}: not valid YAML ({why})") from exc
     lines = _key_lines(root)
 
     def fail(key: str, message: str) -> ConfigError:

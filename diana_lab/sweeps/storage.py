@@ -48,8 +48,32 @@ def display_url(storage: str) -> str:
         return storage.split("@", 1)[-1] if "@" in storage else storage
 
 
+EXPECTED = (
+    "expected a journal file path or an RDB URL such as sqlite:///optuna.db or postgresql+psycopg2://u:pw@host/db"
+)
+
+
+def _check_journal(path: Path) -> None:
+    """Refuse an existing file that is not a journal (an SQLite database given without ``sqlite:///``, a sweep
+    file) before Optuna appends to it and fails on reading it with a message that names neither."""
+    if path.is_dir():
+        raise ConfigError(f"sweep.storage={path}: a folder; {EXPECTED}")
+    if not path.is_file() or path.stat().st_size == 0:
+        return
+    with path.open("rb") as f:
+        head = f.read(16)
+    if head.startswith(b"SQLite format 3"):
+        raise ConfigError(
+            f"sweep.storage={path}: an SQLite database, not a journal file (as a storage: sqlite:///PATH)"
+        )
+    if not head.startswith(b"{"):  # every journal line is a JSON object (even one a worker is writing now)
+        raise ConfigError(f"sweep.storage={path}: not an Optuna journal file; {EXPECTED}")
+
+
 def make_storage(storage: str, heartbeat_s: int = 60) -> BaseStorage:
     """The Optuna storage for ``sweep.storage`` (already resolved); a clear error when it cannot be opened."""
+    if not is_rdb(storage):
+        _check_journal(Path(storage))
     try:
         if not is_rdb(storage):
             path = Path(storage)
@@ -65,6 +89,11 @@ def make_storage(storage: str, heartbeat_s: int = 60) -> BaseStorage:
         first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ConfigError(f"sweep.storage={display_url(storage)}: cannot open the study storage ({first})") from exc
     except Exception as exc:  # SQLAlchemy's OperationalError and friends: a server that is not there
+        if type(exc).__name__ == "NoSuchModuleError":  # redis://, http://: not a database SQLAlchemy knows
+            scheme = storage.split("://", 1)[0]
+            raise ConfigError(
+                f"sweep.storage={display_url(storage)}: '{scheme}' is not a database SQLAlchemy knows; {EXPECTED}"
+            ) from exc
         if type(exc).__module__.startswith("sqlalchemy"):
             first = str(exc).strip().splitlines()[0]
             raise ConfigError(f"sweep.storage={display_url(storage)}: cannot connect ({first})") from exc

@@ -8,9 +8,11 @@ import json
 
 import pytest
 
-from diana_lab.benchmarks import run
-from diana_lab.benchmarks.core import MEASUREMENTS, all_keys, select
-from diana_lab.config import compose
+from diana_lab.benchmarks import run, suite
+from diana_lab.benchmarks.core import MEASUREMENTS, BenchContext, all_keys, select
+from diana_lab.cli import UserError
+from diana_lab.config import ConfigError, compose
+from tests import entrypoints
 
 FIGURE_FIELDS = {"value", "unit", "p10", "p90", "n", "batch", "target", "met", "anchor", "note"}
 TOP_LEVEL = {
@@ -112,3 +114,40 @@ def test_every_documented_key_is_registered_once():
 def test_unknown_figure_names_the_choices():
     with pytest.raises(ValueError, match="only: unknown figure"):
         select(["sensor_mss"])
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("repeats=0", "repeats: expected a positive integer, got 0"),  # was: silently the default, 7
+        ("repeats=2.7", "repeats: expected a positive integer, got 2.7"),  # was: silently 2
+        ("repeats=abc", "repeats: expected a positive integer, got 'abc'"),
+        ("quick=no", "quick: expected true or false, got 'no'"),  # was: bool("no"), a quick run
+        ("profile=maybe", "profile: expected true or false, got 'maybe'"),
+        ("output={tmp}", "is a folder; expected a file path"),  # was: an error after every measurement
+        ("profile_output={tmp}", "profile_output={tmp}: '{tmp}' is a folder"),
+    ],
+)
+def test_bad_options_stop_before_the_first_measurement(tmp_path, monkeypatch, override, message):
+    def measure(*_):
+        raise AssertionError("a measurement ran before the options were checked")
+
+    monkeypatch.setattr(suite, "_measure", measure)
+    extra = ["profile=true"] if override.startswith("profile_output") else []
+    cfg = compose(["only=[kinematic_waypoints_per_s]", override.format(tmp=tmp_path), *extra], config_name="bench")
+    with pytest.raises((ConfigError, UserError)) as info:
+        run(cfg, command="pytest")
+    assert message.format(tmp=tmp_path) in str(info.value)
+
+
+def test_bad_option_exits_2_naming_the_key(tmp_path, capsys):
+    code = entrypoints.run_in_process("diana_lab.bench", ["only=[]", "repeats=abc", f"hydra.run.dir={tmp_path}"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "repeats: expected a positive integer, got 'abc'" in err and "Traceback" not in err
+
+
+def test_repeats_default_by_mode_and_as_given():
+    assert BenchContext(compose(["quick=true"], config_name="bench")).repeats == 3
+    assert BenchContext(compose([], config_name="bench")).repeats == 7
+    assert BenchContext(compose(["repeats=2"], config_name="bench")).repeats == 2

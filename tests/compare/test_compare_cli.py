@@ -61,3 +61,30 @@ def test_typo_in_a_metric_warns_with_the_close_name(store, tmp_path, capsys):
     code = run_compare([f"tracking.uri={uri}", "metrics=[eval_spl,eval_sucess_rate]", f"output={tmp_path / 'c'}"])
     assert code == 0
     assert "no selected run logged eval_sucess_rate (did you mean eval_success_rate" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("key", "value", "shown"), [("variants", "no", "'no'"), ("include_evaluations", "0", "0")])
+def test_a_flag_that_is_not_true_or_false_exits_2_naming_the_key(store, tmp_path, capsys, key, value, shown):
+    uri, _ = store
+    code = run_compare([f"tracking.uri={uri}", f"{key}={value}", f"output={tmp_path / 'cmp'}"])
+    assert code == 2  # bool("no") is True: the comparison would have run with the option the other way round
+    assert f"{key}: expected true or false, got {shown}" in capsys.readouterr().err
+    assert not (tmp_path / "cmp" / "groups.csv").exists()
+
+
+def test_variants_false_is_honoured(store, tmp_path, capsys):
+    uri, _ = store
+    code = run_compare([f"tracking.uri={uri}", "variants=false", "group_by=[algo]", f"output={tmp_path / 'cmp'}"])
+    assert code == 0, capsys.readouterr().err
+    assert "4 runs in 2 groups" in capsys.readouterr().out  # the two learning rates of PPO are one group
+
+
+def test_group_by_a_tag_no_run_has_exits_2_naming_the_available_tags(store, tmp_path, capsys):
+    uri, _ = store
+    code = run_compare([f"tracking.uri={uri}", "group_by=[algoo,algo.learning_rate]", f"output={tmp_path / 'cmp'}"])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "group_by=['algoo', 'algo.learning_rate']: no selected run has the tag(s) algoo, algo.learning_rate" in err
+    assert "algo.learning_rate: config values, not tags" in err
+    assert "the tags of these runs: action_space, algo, dynamics" in err and "mlflow.runName" not in err
+    assert not (tmp_path / "cmp" / "groups.csv").exists()

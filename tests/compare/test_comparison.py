@@ -123,3 +123,12 @@ def test_runs_without_any_requested_metric_are_left_out_with_a_note(store):
         compare_runs(uri, ["diana_lab"], metrics=["train/approx_kl"], curves=[])
     c = compare_runs(uri, ["diana_lab"], metrics=["train/reward_goal"], curves=[], include_evaluations=True)
     assert c.skipped == ["eval astar"] and len(c.runs) == 4
+
+
+def test_group_by_an_option_group_the_runs_lack_is_one_shared_option(store):
+    """Runs logged before a group's tag existed (or without a preset: ``experiment``) lack it: not an error."""
+    uri, _ = store
+    c = compare_runs(uri, ["diana_lab"], metrics=["eval_spl"], curves=[], group_by=["algo", "experiment"])
+    assert set(c.groups["algo"]) == {"ppo", "a2c"} and set(c.groups["experiment"]) == {""}
+    with pytest.raises(ComparisonError, match="no selected run has the tag"):
+        compare_runs(uri, ["diana_lab"], metrics=["eval_spl"], curves=[], group_by=["algo", "wrld"])

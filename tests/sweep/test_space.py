@@ -64,6 +64,19 @@ def test_sampled_value_round_trips_through_an_override(expression, value):
         assert parsed == value and type(parsed) is type(value)
 
 
+@pytest.mark.parametrize(
+    ("expression", "ends"),
+    [
+        ("interval(0.9, 1.5)", (0.9, 1.5)),
+        ("range(32, 257, 32)", (32, 256)),  # the last value range(...) yields, not its excluded end
+        ("int(interval(1, 10))", (1, 10)),
+        ("choice(ppo, sac, a2c)", ("ppo", "sac", "a2c")),
+    ],
+)
+def test_ends_bound_every_value_a_trial_can_get(expression, ends):
+    assert parse_entry("algo.x", expression).ends() == ends
+
+
 def test_fixed_values_stay_overrides():
     assert parse_entry("reward.terms.time.weight", 0.5) == "reward.terms.time.weight=0.5"
     assert parse_entry("a.b", "${c.d}") == "a.b=${c.d}"

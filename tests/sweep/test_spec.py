@@ -8,6 +8,9 @@ import pytest
 import yaml
 
 from diana_lab.config import ConfigError, compose, validate
+from diana_lab.sweeps import runner
+from diana_lab.sweeps.compose import compose_run
+from diana_lab.sweeps.objective import suggest
 from diana_lab.sweeps.spec import SWEEPS_DIR, load_spec
 
 from .helpers import run_in_process, sweep_args, write_sweep
@@ -38,7 +41,7 @@ def test_algorithm_sweeps_name_their_hyperparameters_and_compose(name, keys):
     spec = load_spec(name)
     assert {p.key for p in spec.params} == keys
     assert spec.metric in ("spl", "success_rate") and spec.n_trials > 0 and spec.timesteps and spec.eval_episodes
-    low = [p.override(p.low_value()) for p in spec.params]
+    low = [p.override(p.ends()[0]) for p in spec.params]
     cfg = compose([*spec.base, *low])
     assert cfg.algo.name == name
     assert next(p for p in spec.params if p.key == "algo.learning_rate").distribution.log
@@ -121,3 +124,73 @@ def test_shipped_sweeps_pass_the_start_up_checks(name):
 
     spec = load_spec(name)
     assert _check(spec, spec.params, ()).enabled  # composes and validates every group at the low ends
+
+
+def _line(path: Path, text: str) -> int:
+    return next(i + 1 for i, line in enumerate(path.read_text().splitlines()) if text in line)
+
+
+@pytest.mark.parametrize(
+    ("key", "expression", "message"),
+    [
+        ("algo.gamma", "interval(0.9, 1.5)", "reaches 1.5, which the config rejects: algo.gamma: expected a number in"),
+        ("algo.n_steps", "choice(64, 128, -5)", "reaches -5, which the config rejects: algo.n_steps: expected a"),
+        ("algo.n_steps", "interval(64, 128)", "search it with int(interval(a, b)) or range(a, b)"),
+    ],
+)
+def test_a_value_of_the_range_the_schema_rejects_stops_before_any_trial(tmp_path, capsys, key, expression, message):
+    """Only the low end used to be checked: a bad high end (or later choice) failed every trial and exited 0."""
+    path = write_sweep(tmp_path, params={"algo.learning_rate": "interval(1e-4, 1e-3)", key: expression})
+    code = run_in_process(sweep_args(tmp_path, path))
+    err = capsys.readouterr().err
+    assert code == 2
+    assert f"tiny.yaml:{_line(path, f'{key}: ')}: params.{key}: {expression} reaches" in err and message in err
+    assert not (tmp_path / "optuna.journal").exists()
+
+
+def test_a_file_that_is_not_text_names_the_file(tmp_path):
+    path = tmp_path / "binary.yaml"
+    path.write_bytes(b"\x89PNG\r\n\x1a\n\xff\xfe")
+    with pytest.raises(ConfigError, match=r"binary\.yaml: not a text file"):
+        load_spec(str(path))
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["seed=-1"], "tiny.yaml: base overrides and command line: seed: expected an integer from 0 to 2**32 - 1"),
+        (["sweep.seeds=[0,-3]"], "sweep.seeds[1]: expected an integer from 0 to 2**32 - 1, got -3"),
+        (["sweep.sampler_seed=-1"], "sweep.sampler_seed: expected an integer from 0 to 2**32 - 1"),
+        (["seed=1", "sweep.seeds=[0,1]"], "seed and sweep.seeds both set the trials' training seeds"),
+        (["eval.episodes=3", "sweep.eval_episodes=4"], "eval.episodes and sweep.eval_episodes both set"),
+    ],
+)
+def test_bad_or_conflicting_seeds_and_budgets_exit_2(tmp_path, capsys, extra, message):
+    path = write_sweep(tmp_path)
+    code = run_in_process(sweep_args(tmp_path, path, *extra))
+    assert code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "optuna.journal").exists()
+
+
+def test_the_command_line_budget_wins_over_the_sweep_file(tmp_path, monkeypatch, capsys):
+    """The file's budget is applied after the command line's overrides; it used to replace them silently."""
+    composed = []
+
+    class Compose:  # the objective without training: the trial's config as it would train
+        def __init__(self, plan, worker):
+            self.plan = plan
+
+        def __call__(self, trial):
+            composed.append(compose_run(self.plan.overrides({p.key: suggest(trial, p) for p in self.plan.params}))[0])
+            return 0.5
+
+    monkeypatch.setattr(runner, "Objective", Compose)
+    path = write_sweep(tmp_path, n_trials=1)  # budget: timesteps 128, eval_episodes 2, eval_every 128
+    cli = ["train.total_timesteps=64", "eval.episodes=3", "eval.every=0", "tracking.enabled=false"]
+    code = run_in_process(sweep_args(tmp_path, path, *cli))
+    err = capsys.readouterr().err
+    assert code == 0, err
+    (cfg,) = composed
+    assert (cfg.train.total_timesteps, cfg.eval.episodes, cfg.eval.every) == (64, 3, 0)
+    assert "note: train.total_timesteps is set on the command line, so budget.timesteps is not used" in err

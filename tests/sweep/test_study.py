@@ -100,3 +100,26 @@ def test_command_line_helpers():
     assert (
         display_url("postgresql+psycopg2://me:secret@db:5432/optuna") == "postgresql+psycopg2://me:***@db:5432/optuna"
     )
+
+
+def test_a_storage_that_is_not_a_journal_is_refused_untouched(tmp_path):
+    import sqlite3
+
+    db = tmp_path / "mlflow.db"
+    sqlite3.connect(db).execute("create table t (x)").connection.commit()
+    text = tmp_path / "notes.yaml"
+    text.write_text("params: {}\n")
+    before = db.read_bytes()
+    for storage, message in [
+        (db, "an SQLite database, not a journal file (as a storage: sqlite:///PATH)"),
+        (text, "not an Optuna journal file; expected a journal file path or an RDB URL"),
+        (tmp_path, "a folder; expected a journal file path"),
+        ("redis://localhost:6379", "'redis' is not a database SQLAlchemy knows"),
+    ]:
+        with pytest.raises(ConfigError) as info:
+            make_storage(str(storage))
+        assert str(info.value).startswith(f"sweep.storage={storage}: ") and message in str(info.value)
+    assert db.read_bytes() == before and text.read_text() == "params: {}\n"
+    journal = tmp_path / "s.journal"
+    open_study(make_storage(str(journal)), "s", "maximize", RandomSampler(), make_pruner("none"))
+    assert make_storage(str(journal)) is not None  # an existing journal still opens
