@@ -10,20 +10,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import ConfigError, one_of, positive
+from diana_lab.config.validation import ConfigError, check_seed, one_of, positive
 
 SAMPLERS = ("tpe", "random", "cmaes")
 PRUNERS = ("median", "successive_halving", "none")
 DIRECTIONS = ("maximize", "minimize")
-
-
-MAX_SEED = 2**32 - 1  # numpy's (and so SB3's and Optuna's samplers') seeds are 32-bit unsigned
-
-
-def check_seed(key: str, value: object) -> None:
-    """A seed numpy accepts: checked before the study starts, since a trial would fail only inside training."""
-    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_SEED:
-        raise ConfigError(f"{key}: expected an integer from 0 to 2**32 - 1, got {value!r}")
 
 
 def _positive_int_or_none(key: str, value: int | None) -> None:

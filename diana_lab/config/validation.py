@@ -18,6 +18,15 @@ def boolean(key: str, value: object) -> bool:
     return value
 
 
+MAX_SEED = 2**32 - 1  # numpy's (and so SB3's and Optuna's samplers') seeds are 32-bit unsigned
+
+
+def check_seed(key: str, value: object) -> None:
+    """A seed numpy accepts, checked before the work: numpy's own error names no key."""
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_SEED:
+        raise ConfigError(f"{key}: expected an integer from 0 to 2**32 - 1, got {value!r}")
+
+
 def positive(key: str, value: float) -> None:
     if not (isinstance(value, int | float) and math.isfinite(value) and value > 0):
         raise ConfigError(f"{key}: expected a positive number, got {value!r}")

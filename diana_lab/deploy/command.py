@@ -16,6 +16,7 @@ from typing import Any
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from diana_lab.config import ConfigError
+from diana_lab.config.validation import positive_int
 from diana_lab.deploy.export import (
     action_spec,
     check_opset,
@@ -189,7 +190,8 @@ def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
         )
     out = output_file(cfg.output)  # before loading: a path that cannot be written fails naming `output`
     check_output(out)
-    check_opset(int(cfg.opset))
+    positive_int("opset", cfg.opset)  # opset=abc: int() would fail naming no key
+    check_opset(cfg.opset)
     chosen = chosen_keys(cfg, overrides)
     # loaded without the shield: the export takes the bare policy, and decides the shield once it knows the training's
     eval_cfg = dataclasses.replace(to_object("eval", cfg.eval), shield=ShieldConfig())

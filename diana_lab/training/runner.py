@@ -34,6 +34,7 @@ from diana_lab.agents.factory import build_model, load_model
 from diana_lab.cli import UserError
 from diana_lab.config.evaluation import EvalConfig
 from diana_lab.config.run import AlgoConfig, TrackingConfig, TrainConfig
+from diana_lab.config.validation import check_seed
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.git import git_commit, git_dirty
@@ -325,8 +326,7 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
 
         torch.set_num_threads(train_cfg.torch_threads)
     seed = cfg.get("seed")
-    if isinstance(seed, bool) or not isinstance(seed, int):  # the root key has no schema to check it
-        raise C.ConfigError(f"seed: expected an integer, got {seed!r}")
+    check_seed("seed", seed)  # the root key has no schema to check it
     set_random_seed(seed)
     uri = resolve_uri(tracking.uri) if tracking.enabled else None
     resume = find_resume_point(str(train_cfg.resume), uri, ctx.run_dir / "resume") if train_cfg.resume else None

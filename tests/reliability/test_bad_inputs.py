@@ -150,6 +150,13 @@ ROWS = [
         slow=True,
     ),
     Bad("seed-not-an-integer", TRAIN, ("seed=abc",), ("seed", "integer"), slow=True),
+    Bad("seed-negative", TRAIN, ("seed=-1",), ("seed", "2**32 - 1", "-1"), slow=True),
+    Bad(
+        "export-opset-not-a-number",
+        EXPORT,
+        ("policy={files}/random.zip", "output={tmp}/policy.onnx", "opset=abc"),  # refused before loading
+        ("opset", "positive integer", "abc"),
+    ),
     Bad(
         "physics-urdf-missing",
         TRAIN,
