@@ -92,8 +92,12 @@ class OutputDirCheck(Callback):
             sys.exit(EXIT_USER_ERROR)
 
 
-def hydra_app(config_name: str = "config") -> Callable[[Callable[[DictConfig], Any]], Callable[[], None]]:
-    """Decorator: turn ``task(cfg)`` into a console ``main()`` composed from ``conf/<config_name>.yaml``."""
+def hydra_app(
+    config_name: str = "config", combinations: bool = True
+) -> Callable[[Callable[[DictConfig], Any]], Callable[[], None]]:
+    """Decorator: turn ``task(cfg)`` into a console ``main()`` composed from ``conf/<config_name>.yaml``.
+    ``combinations=False``: only each group's own checks up front, for a task that takes some groups from
+    elsewhere (the export takes ``action_space`` from the training config, and checks the shield against that)."""
 
     def decorator(task: Callable[[DictConfig], Any]) -> Callable[[], None]:
         @functools.wraps(task)
@@ -101,7 +105,7 @@ def hydra_app(config_name: str = "config") -> Callable[[Callable[[DictConfig], A
             try:
                 # every group's range checks before the task imports its stack (torch, open3d, SB3: seconds),
                 # so a bad value fails in about a second; the tasks check again where they build things
-                validate(cfg, [g for g in cfg if g in SCHEMAS])
+                validate(cfg, [g for g in cfg if g in SCHEMAS], combinations)
                 return task(cfg)
             except (*USER_ERRORS, UserError) as exc:
                 if os.environ.get("HYDRA_FULL_ERROR"):

@@ -21,7 +21,7 @@ from diana_lab.cli import hydra_app
 __all__ = ["main"]
 
 
-@hydra_app(config_name="export")
+@hydra_app(config_name="export", combinations=False)  # action_space: the training's
 def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 

@@ -98,10 +98,13 @@ def to_object(group: str, node: Any) -> Any:
         raise ConfigError(f"{group}: {exc}".split("\n    full_key")[0]) from exc
 
 
-def validate(cfg: DictConfig, groups: Sequence[str] = GROUPS) -> dict[str, Any]:
+def validate(cfg: DictConfig, groups: Sequence[str] = GROUPS, combinations: bool = True) -> dict[str, Any]:
     """Typed objects of every group present in ``cfg``; raises :class:`ConfigError` on impossible values,
-    and on groups that cannot work together (an ``algo`` that cannot drive the ``action_space``)."""
+    and (``combinations``) on groups that cannot work together (an ``algo`` that cannot drive the
+    ``action_space``, the slope shield over a continuous one)."""
     typed = {g: to_object(g, cfg[g]) for g in groups if g in cfg}
+    if not combinations:
+        return typed
     if "algo" in typed and "action_space" in typed:
         check_action_space(typed["algo"], typed["action_space"].shape)
     shape = typed["action_space"].shape if "action_space" in typed else "discrete"

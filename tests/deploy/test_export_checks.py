@@ -140,3 +140,31 @@ def test_an_export_that_fails_after_writing_the_graph_leaves_nothing_behind(shie
     with pytest.raises(onnx.checker.ValidationError):  # at the tested opset: a bug, with its own traceback
         export(shielded_run, onnx_path)
     assert not onnx_path.exists()
+
+
+def test_the_shield_can_be_turned_on_for_a_policy_trained_without_it(tmp_path_factory, small_world, tmp_path):
+    """Through the command line's up-front checks: they used to refuse ``eval.shield.enabled=true`` over the
+    command line's (continuous, default) action space, which the export does not use: it takes the training's."""
+    import subprocess
+    import sys
+
+    run_dir = tmp_path_factory.mktemp("unshielded_run")
+    make_run(run_dir, run_config(*(a for a in TRAINING if not a.startswith("eval.shield"))), small_world).close()
+    onnx = tmp_path / "policy.onnx"
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "diana_lab.export",
+            f"policy={run_dir}",
+            f"output={onnx}",
+            "eval.shield.enabled=true",
+            f"hydra.run.dir={tmp_path / 'hydra'}",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr
+    spec = PolicySpec.load(sidecar_path(onnx))
+    assert spec.shield is not None and spec.action_space.shape == "discrete"
