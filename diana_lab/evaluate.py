@@ -49,17 +49,18 @@ def chosen_dynamics(cfg: DictConfig, overrides: list[str]) -> list[str]:
     Returns the ``dynamics.<key>`` settings given without a ``dynamics=`` group (``dynamics.pose_noise.position_std``
     ...): :func:`env_config` lays them over the training's dynamics when that replaces the command line's, so
     that they are not dropped with it."""
-    settings = [o for o in overrides if "=" in o and not o.startswith("~")]
-    chosen = [o for o in settings if o.lstrip("+").split("=", 1)[0] == "dynamics"]
-    if not chosen:
-        return [o.lstrip("+").split("=", 1)[0] for o in settings if o.lstrip("+").startswith("dynamics.")]
+    from diana_lab.config import override_keys
+
+    keys = override_keys(overrides)
+    if "dynamics" not in keys:
+        return [k for k in keys if k.startswith("dynamics.")]
     name = str(cfg.dynamics.get("name"))
     if cfg.eval.get("dynamics") is None:
         with open_dict(cfg):
             cfg.eval.dynamics = name
     elif cfg.eval.dynamics != name:
         raise UserError(
-            f"{chosen[-1]} and eval.dynamics={cfg.eval.dynamics}: expected one dynamics to evaluate in; "
+            f"dynamics={name} and eval.dynamics={cfg.eval.dynamics}: expected one dynamics to evaluate in; "
             f"give either (eval.dynamics={cfg.eval.dynamics} takes conf/dynamics/{cfg.eval.dynamics}.yaml as it is, "
             f"dynamics={cfg.eval.dynamics} dynamics.<key>=... changes its settings)"
         )

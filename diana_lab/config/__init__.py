@@ -33,11 +33,23 @@ __all__ = [
     "ConfigError",
     "build",
     "compose",
+    "override_keys",
     "register",
     "store_schemas",
     "to_object",
     "validate",
 ]
+
+
+def override_keys(overrides: Sequence[str], deletions: bool = False) -> list[str]:
+    """The keys (or groups) command-line ``overrides`` name, in order, read by Hydra's own parser
+    (``+experiment=reference`` -> ``experiment``); a deletion (``~key``) only with ``deletions``."""
+    from hydra.core.override_parser.overrides_parser import OverridesParser
+
+    if not overrides:
+        return []
+    parsed = OverridesParser.create().parse_overrides(list(overrides))
+    return [o.key_or_group for o in parsed if deletions or not o.is_delete()]
 
 
 def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:

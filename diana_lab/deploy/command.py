@@ -13,7 +13,7 @@ import dataclasses
 from collections.abc import Sequence
 from typing import Any
 
-from omegaconf import DictConfig, ListConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf
 
 from diana_lab.config import ConfigError
 from diana_lab.config.validation import positive_int
@@ -26,6 +26,7 @@ from diana_lab.deploy.export import (
     sensor_spec,
 )
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
+from diana_lab.evaluation.loading import flat_keys
 
 __all__ = ["PRETRAINED_PRESET", "TRAINED_GROUPS", "check_overrides", "chosen_keys", "export_shield", "run"]
 
@@ -34,32 +35,18 @@ TRAINED_GROUPS = ("sensor", "action_space", "episode", "robot")  # what the expo
 PRETRAINED_PRESET = "+experiment=reference"
 
 
-def _flat(node: Any, prefix: str) -> dict[str, Any]:
-    """``{"group.a.b": value}`` of a config node (lists are values); ``{}`` for None."""
-    if isinstance(node, DictConfig | ListConfig):
-        node = OmegaConf.to_container(node, resolve=True)
-    if node is None:
-        return {}
-    if not isinstance(node, dict):
-        return {prefix: node}
-    out: dict[str, Any] = {}
-    for k, v in node.items():
-        out.update(_flat(v, f"{prefix}.{k}"))
-    return out
-
-
 def chosen_keys(cfg: DictConfig, overrides: Sequence[str] | None) -> set[str]:
     """The keys of ``TRAINED_GROUPS`` and ``eval`` this export's command line set: those its ``overrides`` name
     (a group choice, ``robot=husky``, names its whole group), and those whose value differs from
     ``conf/export.yaml``'s, which is how a preset (``+experiment=...``) shows its choices, and all a config
     composed outside Hydra (``overrides`` None) can show."""
-    from diana_lab.config import compose
+    from diana_lab.config import compose, override_keys
 
-    named = [o.lstrip("+").split("=", 1)[0] for o in overrides or () if "=" in o and not o.startswith("~")]
+    named = override_keys(overrides or ())
     default = compose([], config_name="export")
     chosen = set()
     for group in (*TRAINED_GROUPS, "eval"):
-        here, base = _flat(cfg.get(group), group), _flat(default.get(group), group)
+        here, base = flat_keys(cfg.get(group), group), flat_keys(default.get(group), group)
         chosen |= {
             k
             for k in here.keys() | base.keys()
@@ -72,7 +59,7 @@ def _laid_over(base: Any, node: Any, prefix: str, keys: Sequence[str]) -> dict[s
     """``base`` (a config node) with ``node``'s values of ``keys`` (``prefix.a.b``) laid over it; a key ``node``
     lacks (dropped by another group option) is dropped too."""
     out = OmegaConf.to_container(base, resolve=True) if isinstance(base, DictConfig) else dict(base or {})
-    values = _flat(node, prefix)
+    values = flat_keys(node, prefix)
     for key in keys:
         *path, leaf = key[len(prefix) + 1 :].split(".")
         parent = out
@@ -151,7 +138,7 @@ def check_overrides(cfg: DictConfig, train_cfg: DictConfig, chosen: set[str], sh
     for group in TRAINED_GROUPS:
         if group not in train_cfg:
             continue  # the command line's is used
-        here, train = _flat(cfg.get(group), group), _flat(train_cfg[group], group)
+        here, train = flat_keys(cfg.get(group), group), flat_keys(train_cfg[group], group)
         keys = sorted(k for k in chosen if k.startswith(f"{group}.") and here.get(k) != train.get(k))
         if not keys:
             continue

@@ -38,7 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from gymnasium import spaces
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from diana_lab.cli import UserError
 from diana_lab.config import ConfigError
@@ -51,6 +51,7 @@ __all__ = [
     "LoadedPolicy",
     "check_action_space",
     "check_observation_space",
+    "flat_keys",
     "load_policy",
     "load_sb3",
 ]
@@ -325,12 +326,18 @@ def _shapes(space: spaces.Space) -> dict[str, tuple[tuple[int, ...], str]]:
     return {"<observation>": (tuple(space.shape or ()), str(space.dtype))}
 
 
-def _flat(node: Any, prefix: str = "") -> dict[str, Any]:
+def flat_keys(node: Any, prefix: str = "") -> dict[str, Any]:
+    """``{"a.b.c": value}`` of a config (a ``DictConfig``, resolved, or plain dicts; lists are values); ``{}`` for
+    None."""
+    if isinstance(node, DictConfig | ListConfig):
+        node = OmegaConf.to_container(node, resolve=True)
+    if node is None:
+        return {}
     if not isinstance(node, dict):
         return {prefix: node}
     out: dict[str, Any] = {}
     for k, v in node.items():
-        out.update(_flat(v, f"{prefix}.{k}" if prefix else str(k)))
+        out.update(flat_keys(v, f"{prefix}.{k}" if prefix else str(k)))
     return out
 
 
@@ -344,8 +351,8 @@ def config_differences(
         return []
     diffs = []
     for g in groups:
-        a = _flat(OmegaConf.to_container(train_cfg[g], resolve=True)) if g in train_cfg else {}
-        b = _flat(OmegaConf.to_container(eval_cfg[g], resolve=True)) if g in eval_cfg else {}
+        a = flat_keys(train_cfg.get(g))
+        b = flat_keys(eval_cfg.get(g))
         for k in sorted(set(a) | set(b)):
             if a.get(k) != b.get(k):
                 diffs.append(f"{g}.{k}: training {a.get(k)!r}, here {b.get(k)!r}")

@@ -10,10 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from hydra.core.override_parser.overrides_parser import OverridesParser
 from omegaconf import DictConfig, OmegaConf, open_dict
 
 from diana_lab.config import CONF_DIR, ConfigError, store_schemas
+from diana_lab.config import override_keys as _override_keys
 from diana_lab.training.context import TAG_GROUPS
 
 __all__ = ["compose_run", "override_keys"]
@@ -54,7 +54,5 @@ def compose_run(overrides: Sequence[str]) -> tuple[DictConfig, dict[str, str]]:
 
 
 def override_keys(overrides: Sequence[str]) -> set[str]:
-    """The keys (or groups) that overrides set: ``{"world", "reward.terms.goal.weight"}``."""
-    if not overrides:
-        return set()
-    return {o.key_or_group for o in OverridesParser.create().parse_overrides(list(overrides))}
+    """The keys (or groups) that overrides set or delete: ``{"world", "reward.terms.goal.weight"}``."""
+    return set(_override_keys(overrides, deletions=True))
