@@ -58,20 +58,15 @@ def chosen_keys(cfg: DictConfig, overrides: Sequence[str] | None) -> set[str]:
 def _laid_over(base: Any, node: Any, prefix: str, keys: Sequence[str]) -> dict[str, Any]:
     """``base`` (a config node) with ``node``'s values of ``keys`` (``prefix.a.b``) laid over it; a key ``node``
     lacks (dropped by another group option) is dropped too."""
-    out = OmegaConf.to_container(base, resolve=True) if isinstance(base, DictConfig) else dict(base or {})
+    out = OmegaConf.create(OmegaConf.to_container(base, resolve=True) if isinstance(base, DictConfig) else base or {})
     values = flat_keys(node, prefix)
     for key in keys:
-        *path, leaf = key[len(prefix) + 1 :].split(".")
-        parent = out
-        for part in path:
-            if not isinstance(parent.get(part), dict):
-                parent[part] = {}
-            parent = parent[part]
+        rel = key[len(prefix) + 1 :]
         if key in values:
-            parent[leaf] = values[key]
-        else:
-            parent.pop(leaf, None)
-    return out
+            OmegaConf.update(out, rel, values[key], merge=False, force_add=True)
+        elif isinstance(parent := OmegaConf.select(out, rel.rpartition(".")[0] or "."), DictConfig):
+            parent.pop(rel.rpartition(".")[2], None)
+    return OmegaConf.to_container(out)
 
 
 def _shown(keys: Sequence[str], here: dict[str, Any], train: dict[str, Any]) -> str:

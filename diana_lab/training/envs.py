@@ -111,8 +111,9 @@ def make_env(groups: dict[str, Any], render_mode: str | None = None, expert: Imi
     return ExpertLabels(env, make_expert(expert), offsets)
 
 
-def check_env(groups: dict[str, Any], seed: int) -> None:
-    """Build one env from ``groups`` and reset it once, then close it.
+def check_env(groups: dict[str, Any], seed: int) -> tuple[gym.Space, gym.Space]:
+    """Build one env from ``groups`` and reset it once, then close it; return its observation and action spaces
+    (what a resumed model is checked against).
 
     The runner calls this before it opens an MLflow run: every mistake that only shows when the env is built
     or draws its first episode (a DEM that cannot be read, a reward term that cannot be imported or evaluated,
@@ -122,6 +123,7 @@ def check_env(groups: dict[str, Any], seed: int) -> None:
     env = make_env(groups)
     try:
         env.reset(seed=seed)
+        return env.observation_space, env.action_space
     finally:
         env.close()
 

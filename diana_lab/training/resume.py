@@ -144,8 +144,11 @@ def find_resume_point(spec: str, uri: str | None, download_dir: Path) -> ResumeP
     )
 
 
-def check_resumable(resume: ResumePoint, cfg: DictConfig, env: gym.Env) -> list[str]:
-    """Refuse to continue ``resume``'s model in ``env`` when its observation or action space differs (SB3 would
+def check_resumable(
+    resume: ResumePoint, cfg: DictConfig, observation_space: gym.Space, action_space: gym.Space
+) -> list[str]:
+    """Refuse to continue ``resume``'s model in ``cfg``'s env, whose spaces are given, when its observation or
+    action space differs (SB3 would
     refuse too, after the MLflow run is open and without saying which setting changed); return the config keys
     of the env groups that differ from the training's (``reward.weights.goal: training 10.0, here 20.0``)."""
     from stable_baselines3.common.save_util import load_from_zip_file
@@ -158,8 +161,8 @@ def check_resumable(resume: ResumePoint, cfg: DictConfig, env: gym.Env) -> list[
     data, _, _ = load_from_zip_file(resume.checkpoint.model, load_data=True, device="cpu")
     assert data is not None
     for kind, saved, here in (
-        ("observation", data.get("observation_space"), env.observation_space),
-        ("action", data.get("action_space"), env.action_space),
+        ("observation", data.get("observation_space"), observation_space),
+        ("action", data.get("action_space"), action_space),
     ):
         if saved is not None and saved != here:  # SB3's own rule: equal spaces, bounds included
             if isinstance(saved, gym.spaces.Dict) and isinstance(here, gym.spaces.Dict):

@@ -63,14 +63,10 @@ __all__ = ["RUN_GROUPS", "train"]
 RUN_GROUPS = (*C.GROUPS, "algo", "train", "eval", "tracking")
 
 
-def _checked_resume(resume: ResumePoint, cfg: DictConfig) -> ResumePoint:
+def _checked_resume(resume: ResumePoint, cfg: DictConfig, observation_space: Any, action_space: Any) -> ResumePoint:
     """``resume`` with the env settings that differ from its training's, printed: continuing on a new world or
     reward is allowed (fine-tuning), but said; another observation or action space is an error."""
-    env = make_env(env_config(cfg))
-    try:
-        changes = check_resumable(resume, cfg, env)
-    finally:
-        env.close()
+    changes = check_resumable(resume, cfg, observation_space, action_space)
     if changes:
         listed = "\n  ".join(changes)
         print(f"train.resume: {resume.source} continues with other settings than it was trained with:\n  {listed}")
@@ -344,9 +340,9 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
         from diana_lab.evaluation.perceived import check_perceivable
 
         check_perceivable(cfg, "train.imitation.expert=astar_seen")
-    check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
+    spaces = check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
     if resume is not None:
-        resume = _checked_resume(resume, cfg)
+        resume = _checked_resume(resume, cfg, *spaces)
     for world in training_worlds(cfg, train_cfg)[1:]:  # and so does a bad train.worlds entry
         check_env({**env_config(cfg), "world": world}, seed)
     tracker, run, status, summary = Tracker(), None, "FAILED", {}
