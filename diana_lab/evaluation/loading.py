@@ -160,11 +160,14 @@ def _vecnormalize_file(model_zip: Path, train_cfg: DictConfig | None) -> Path | 
     (``rl_model_vecnormalize_<n>_steps.pkl``: the run's final ``vecnormalize.pkl`` would normalise its
     observations with other statistics), else ``vecnormalize.pkl`` beside it. A run that normalised
     (``algo.normalize``) without them is refused: the raw observations would run without a word."""
-    from diana_lab.training.checkpoints import MODEL_RE, PREFIX
+    from diana_lab.training.checkpoints import MODEL_RE, Checkpoint
 
     checkpoint = MODEL_RE.match(model_zip.name)
-    name = f"{PREFIX}_vecnormalize_{checkpoint.group(1)}_steps.pkl" if checkpoint else "vecnormalize.pkl"
-    expected = model_zip.parent / name
+    expected = (
+        Checkpoint.buffer_path(model_zip.parent, int(checkpoint.group(1)), "vecnormalize")
+        if checkpoint
+        else model_zip.parent / "vecnormalize.pkl"
+    )
     path = expected if expected.is_file() else None
     if path is None and train_cfg is not None and OmegaConf.select(train_cfg, "algo.normalize", default=False):
         raise UserError(

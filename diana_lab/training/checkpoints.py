@@ -32,13 +32,19 @@ class Checkpoint:
     vecnormalize: Path | None
     replay_buffer: Path | None
 
+    @staticmethod
+    def buffer_path(directory: Path, steps: int, kind: str) -> Path:
+        """Where SB3's ``CheckpointCallback`` saves the ``kind`` (``vecnormalize``, ``replay_buffer``) of the
+        checkpoint at ``steps``, whether or not it is there."""
+        return directory / f"{PREFIX}_{kind}_{steps}_steps.pkl"
+
     @classmethod
     def at(cls, directory: Path, steps: int) -> Checkpoint:
         def maybe(kind: str) -> Path | None:
-            p = directory / f"{PREFIX}_{kind}{steps}_steps.pkl"
+            p = cls.buffer_path(directory, steps, kind)
             return p if p.is_file() else None
 
-        return cls(steps, directory / f"{PREFIX}_{steps}_steps.zip", maybe("vecnormalize_"), maybe("replay_buffer_"))
+        return cls(steps, directory / f"{PREFIX}_{steps}_steps.zip", maybe("vecnormalize"), maybe("replay_buffer"))
 
 
 def latest_checkpoint(directory: Path) -> Checkpoint | None:
