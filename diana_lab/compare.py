@@ -55,6 +55,12 @@ def main(cfg: DictConfig) -> None:
             f"note: left out {len(c.skipped)} run(s) without any of the metrics: {', '.join(c.skipped)}",
             file=sys.stderr,
         )
+    for group, seeds in c.repeated_seeds.items():
+        print(
+            f"warning: group {group!r} has runs sharing seed(s) {', '.join(seeds)} ('?': no seed tag); their std "
+            "is not a spread over seeds (keep one run per seed with filter=...)",
+            file=sys.stderr,
+        )
     files = write_report(c, Path(str(cfg.output)))
     where = f"{', '.join(experiments)}" + (f", filter {cfg.filter!r}" if cfg.filter else "")
     print(f"{len(c.runs)} runs in {len(c.groups)} groups ({where}):\n")

@@ -18,7 +18,7 @@ import pandas as pd
 
 from diana_lab.comparison.runs import tag
 
-__all__ = ["IGNORED_PARAMS", "aggregate", "assign_groups", "learning_curves", "runs_table"]
+__all__ = ["IGNORED_PARAMS", "aggregate", "assign_groups", "learning_curves", "repeated_seeds", "runs_table"]
 
 # params that do not change what is learnt (or are the seed): never a reason to split a group
 IGNORED_PARAMS = (
@@ -123,13 +123,26 @@ def aggregate(table: pd.DataFrame, group_by: Sequence[str], metrics: Sequence[st
         row.update({g: block[g].iloc[0] for g in group_by})
         row["variant"] = block["variant"].iloc[0]
         row["runs"] = len(block)
-        row["seeds"] = ",".join(sorted(block["seed"].astype(str), key=lambda s: (len(s), s)))
+        row["seeds"] = ",".join(sorted(block["seed"].astype(str).replace("", "?"), key=lambda s: (len(s), s)))
         for m in metrics:
             values = block[m].astype(float)
             row[f"{m}_mean"] = values.mean()
             row[f"{m}_std"] = values.std(ddof=1) if values.notna().sum() > 1 else np.nan
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def repeated_seeds(table: pd.DataFrame) -> dict[str, list[str]]:
+    """Groups of :func:`runs_table` in which two or more runs share a seed (or lack the seed tag: ``"?"``), with
+    those seeds. Such runs repeat one result rather than sample the seeds (a re-run, a resumed run logged twice),
+    so the group's std is not a spread over seeds."""
+    out: dict[str, list[str]] = {}
+    for name, block in table.groupby("group", sort=False):
+        counts = block["seed"].astype(str).replace("", "?").value_counts()
+        repeated = sorted(counts.index[counts > 1], key=lambda s: (len(s), s))
+        if repeated:
+            out[str(name)] = repeated
+    return out
 
 
 def learning_curves(histories: pd.DataFrame, groups: pd.Series) -> pd.DataFrame:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from diana_lab.comparison.groups import aggregate, assign_groups, learning_curves, runs_table
+from diana_lab.comparison.groups import aggregate, assign_groups, learning_curves, repeated_seeds, runs_table
 from diana_lab.comparison.plots import plot_final_metrics, plot_learning_curves, save_figure
 from diana_lab.comparison.runs import ComparisonError, load_runs, metric_histories
 
@@ -48,6 +48,7 @@ class Comparison:
     curve_metrics: tuple[str, ...]
     missing_metrics: dict[str, list[str]] = field(default_factory=dict)  # not logged by any run -> close names
     skipped: list[str] = field(default_factory=list)  # names of matching runs without any of the metrics
+    repeated_seeds: dict[str, list[str]] = field(default_factory=dict)  # group -> seeds two of its runs share
 
 
 def _missing(raw: pd.DataFrame, wanted: Sequence[str]) -> dict[str, list[str]]:
@@ -85,6 +86,7 @@ def compare_runs(
         curve_metrics=curves,
         missing_metrics=_missing(raw, (*metrics, *curves)),
         skipped=skipped,
+        repeated_seeds=repeated_seeds(table),
     )
 
 

@@ -44,8 +44,9 @@ def test_writes_tables_and_curves_of_the_selected_runs(store, tmp_path, capsys):
     assert (out / ".hydra" / "config.yaml").is_file()  # the comparison's own record
     with Image.open(out / "curves_eval_spl.png") as im:
         assert im.size[0] > 300
-    printed = capsys.readouterr().out
-    assert "4 runs in 3 groups" in printed
+    captured = capsys.readouterr()
+    assert "4 runs in 3 groups" in captured.out
+    assert "sharing seed" not in captured.err  # each group's runs have their own seeds
 
 
 def test_no_matching_run_exits_2_naming_the_filter(store, tmp_path, capsys):
@@ -75,8 +76,11 @@ def test_a_flag_that_is_not_true_or_false_exits_2_naming_the_key(store, tmp_path
 def test_variants_false_is_honoured(store, tmp_path, capsys):
     uri, _ = store
     code = run_compare([f"tracking.uri={uri}", "variants=false", "group_by=[algo]", f"output={tmp_path / 'cmp'}"])
-    assert code == 0, capsys.readouterr().err
-    assert "4 runs in 2 groups" in capsys.readouterr().out  # the two learning rates of PPO are one group
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "4 runs in 2 groups" in captured.out  # the two learning rates of PPO are one group
+    # ... in which two runs have seed 0: their std is no spread over seeds, and the user is told so
+    assert "warning: group 'algo=ppo' has runs sharing seed(s) 0" in captured.err
 
 
 def test_group_by_a_tag_no_run_has_exits_2_naming_the_available_tags(store, tmp_path, capsys):

@@ -132,3 +132,19 @@ def test_group_by_an_option_group_the_runs_lack_is_one_shared_option(store):
     assert set(c.groups["algo"]) == {"ppo", "a2c"} and set(c.groups["experiment"]) == {""}
     with pytest.raises(ComparisonError, match="no selected run has the tag"):
         compare_runs(uri, ["diana_lab"], metrics=["eval_spl"], curves=[], group_by=["algo", "wrld"])
+
+
+def test_groups_whose_runs_share_a_seed_are_reported():
+    from diana_lab.comparison.groups import aggregate, repeated_seeds
+
+    table = pd.DataFrame(
+        {
+            "group": ["a", "a", "a", "b", "b", "c", "c"],
+            "seed": ["1", "1", "2", "", "", "0", "10"],
+            "variant": "",
+            "m": [0.5, 0.7, 0.6, 0.1, 0.2, 0.3, 0.4],
+        }
+    )
+    assert repeated_seeds(table) == {"a": ["1"], "b": ["?"]}  # c's seeds differ: a spread over seeds
+    seeds = aggregate(table, (), ["m"]).set_index("group")["seeds"]
+    assert seeds.to_dict() == {"a": "1,1,2", "b": "?,?", "c": "0,10"}
