@@ -114,6 +114,15 @@ def runs_table(grouped: pd.DataFrame, group_by: Sequence[str], metrics: Sequence
     return table.reset_index(drop=True)
 
 
+def _seeds(block: pd.DataFrame) -> pd.Series:
+    """The runs' seeds as shown: ``"?"`` for a run without the seed tag."""
+    return block["seed"].astype(str).replace("", "?")
+
+
+def _in_seed_order(seeds: Sequence[str]) -> list[str]:
+    return sorted(seeds, key=lambda s: (len(s), s))  # numerically for the integers they are: 2 before 10
+
+
 def aggregate(table: pd.DataFrame, group_by: Sequence[str], metrics: Sequence[str]) -> pd.DataFrame:
     """Per group of :func:`runs_table`: ``runs``, ``seeds`` and each metric's ``<m>_mean`` / ``<m>_std``
     (sample standard deviation over the runs; NaN for a single run)."""
@@ -123,7 +132,7 @@ def aggregate(table: pd.DataFrame, group_by: Sequence[str], metrics: Sequence[st
         row.update({g: block[g].iloc[0] for g in group_by})
         row["variant"] = block["variant"].iloc[0]
         row["runs"] = len(block)
-        row["seeds"] = ",".join(sorted(block["seed"].astype(str).replace("", "?"), key=lambda s: (len(s), s)))
+        row["seeds"] = ",".join(_in_seed_order(_seeds(block)))
         for m in metrics:
             values = block[m].astype(float)
             row[f"{m}_mean"] = values.mean()
@@ -138,8 +147,8 @@ def repeated_seeds(table: pd.DataFrame) -> dict[str, list[str]]:
     so the group's std is not a spread over seeds."""
     out: dict[str, list[str]] = {}
     for name, block in table.groupby("group", sort=False):
-        counts = block["seed"].astype(str).replace("", "?").value_counts()
-        repeated = sorted(counts.index[counts > 1], key=lambda s: (len(s), s))
+        counts = _seeds(block).value_counts()
+        repeated = _in_seed_order(counts.index[counts > 1])
         if repeated:
             out[str(name)] = repeated
     return out
