@@ -148,9 +148,9 @@ def check_resumable(
     resume: ResumePoint, cfg: DictConfig, observation_space: gym.Space, action_space: gym.Space
 ) -> list[str]:
     """Refuse to continue ``resume``'s model in ``cfg``'s env, whose spaces are given, when its observation or
-    action space differs (SB3 would
-    refuse too, after the MLflow run is open and without saying which setting changed); return the config keys
-    of the env groups that differ from the training's (``reward.weights.goal: training 10.0, here 20.0``)."""
+    action space differs (SB3 would refuse too, after the MLflow run is open and without saying which setting
+    changed); return the config keys of the env groups that differ from the training's
+    (``reward.weights.goal: training 10.0, here 20.0``)."""
     from stable_baselines3.common.save_util import load_from_zip_file
 
     from diana_lab.config import GROUPS
