@@ -66,6 +66,12 @@ The detour (``detour_after`` > 0, given the goal): once the rover has gone that 
 the goal, the allowed candidate with the least length plus cost to go over this map is driven, after the final
 approach and before the policy's own choice (:mod:`diana_lab.detour`, which says why and how).
 
+The route rule (``route``, given the goal): at every decision after those two, only the allowed drives whose
+length plus cost to go over this map lies within ``route_tolerance`` of the least are open to the policy, and its
+most probable of them is driven (:meth:`diana_lab.detour.Detour.route`; ``slope_cost_weight`` makes the search
+charge slopes over ``slope_cost_from_deg``). Such a decision is not counted as a veto: ``routes`` counts those
+that turned from the policy's choice.
+
 Relief (``relief``): a drive is also vetoed where it crosses a cell whose footprint, on the map's mean returns
 (``HeightMemory(mean=True)``), is too steep, stepped or rough (:mod:`diana_lab.relief`, which says why and how);
 the detour's search takes those cells as walls, and the fallback drops the check with the tilt check. With
@@ -86,7 +92,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from diana_lab.detour import Detour
+from diana_lab.detour import Detour, SlopeCost
 from diana_lab.height_memory import HeightMemory
 from diana_lab.relief import ReliefLimits, relief_judgement
 from diana_lab.rotations import leveling_matrix
@@ -153,6 +159,11 @@ class ShieldSettings:
     relief_roughness: float = 0.065  # m RMS about the footprint plane over this is one
     relief_min_known: int = 8  # footprint cells that must be known for a cell to be judged
     relief_unseen_from: float = 0.0  # m along a drive beyond which a cell the check cannot judge vetoes it; 0: off
+    route: bool = False  # the route rule (diana_lab.detour): off (older sidecars)
+    route_tolerance: float = 1.0  # m over the least length + cost to go that a drive open to the policy may cost
+    slope_cost_weight: float = 0.0  # the search's cost of slope (diana_lab.detour.SlopeCost); 0: off (older sidecars)
+    slope_cost_from_deg: float = 15.0
+    slope_cost_to_deg: float = 22.0
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -186,6 +197,11 @@ class ShieldSettings:
             float(cfg.relief_roughness),
             int(cfg.relief_min_known),
             float(cfg.relief_unseen_from),
+            bool(cfg.route),
+            float(cfg.route_tolerance),
+            float(cfg.slope_cost_weight),
+            float(cfg.slope_cost_from_deg),
+            float(cfg.slope_cost_to_deg),
         )
 
     @classmethod
@@ -260,17 +276,25 @@ class SlopeShield:
             raise ValueError(
                 f"SlopeShield: expected relief_unseen_from >= 0 m (0: off), got {settings.relief_unseen_from}"
             )
+        if not settings.route_tolerance >= 0:
+            raise ValueError(f"SlopeShield: expected route_tolerance >= 0 m, got {settings.route_tolerance}")
+        try:
+            slope_cost = SlopeCost(settings.slope_cost_weight, settings.slope_cost_from_deg, settings.slope_cost_to_deg)
+        except ValueError as exc:
+            raise ValueError(f"SlopeShield: the search's slope cost: {exc}") from exc
+        # the detour's search, which the route rule uses too (its stall count only with detour_after > 0)
         self.detour = (
             Detour(
-                settings.detour_after,
+                max(settings.detour_after, 1),
                 settings.detour_progress,
                 settings.detour_margin,
                 settings.limit_deg,
                 settings.hazard_radius,
                 pool=max(1, round(2.0 * settings.half_track / settings.cell_size)),  # the track width in cells
                 relief=self.relief,
+                slope_cost=slope_cost,
             )
-            if settings.detour_after > 0
+            if settings.detour_after > 0 or settings.route
             else None
         )
         self._smooth_reach = max(1, round(settings.smooth_radius / (2.0 * settings.cell_size)))  # in 2 x 2 blocks
@@ -293,6 +317,7 @@ class SlopeShield:
         self.fallbacks = 0  # decisions that found no candidate allowed (the tilt check dropped, see _fallback)
         self.approaches = 0  # decisions the final approach made (the goal within approach_radius, its drive allowed)
         self.detours = 0  # decisions the detour made (no progress for detour_after decisions; diana_lab.detour)
+        self.routes = 0  # decisions the route rule turned from the policy's choice (``route``; diana_lab.detour)
         # of the vetoes, how many each check made: every check the policy's own choice failed counts (one veto
         # can fail several, so the counts can sum past ``vetoes``); a choice that failed none was driven
         self.vetoed_by = dict.fromkeys(VETO_CHECKS, 0)
@@ -596,7 +621,8 @@ class SlopeShield:
         from the places stood on (else the first allowed); if none is allowed, :meth:`_fallback`'s. With
         ``approach_radius`` and the goal (world ``goal_xy``) that near, :meth:`approach`'s drive comes first; with
         ``detour_after`` and the goal, once the rover has stopped gaining on it, :class:`~diana_lab.detour.Detour`'s
-        drive comes next."""
+        drive comes next; then, with ``route`` and the goal, the route rule's (:meth:`Detour.route`), when its
+        search finds a way."""
         if len(ranked) == 0:
             raise ValueError("SlopeShield.choose: expected at least one ranked candidate, got none")
         self.decisions += 1
@@ -607,7 +633,7 @@ class SlopeShield:
         if self.cfg.revisit_radius > 0 and not (len(self._stood) and (self._stood[-1] == start).all()):
             self._stood = np.concatenate([self._stood, start[None]])  # a rover that has not moved adds nothing
         goal = None if goal_xy is None else np.asarray(goal_xy, dtype=np.float64)[:2]
-        stalled = self.detour is not None and goal is not None and self.detour.stalled(start, goal)
+        stalled = self.cfg.detour_after > 0 and goal is not None and self.detour.stalled(start, goal)
         if goal is not None and self.cfg.approach_radius > 0:
             j = self.approach(offsets[top], start, goal)
             if j is not None:
@@ -617,6 +643,11 @@ class SlopeShield:
             j = self.detour.choose(self, offsets[top], start, goal, fresh)
             if j is not None:
                 self.detours += 1
+                return int(top[j])
+        if self.cfg.route and goal is not None:
+            j = self.detour.route(self, offsets[top], start, goal, fresh, self.cfg.route_tolerance)
+            if j is not None:
+                self.routes += j != 0
                 return int(top[j])
         # the policy's own choice first (v0.11 drives it at about half the yard's decisions), then the rest at once
         first_failed = self.failed_checks(start, offsets[top[0]])

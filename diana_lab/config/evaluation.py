@@ -127,6 +127,19 @@ class ShieldConfig:
     # cannot judge (unseen, or too little of its footprint seen): with the cameras' dense map that is ground hidden
     # behind a crest or down a slope, where the physics rover rolled; 0: off
     relief_unseen_from: float = 0.0
+    # the route rule: at every decision (after the final approach and a stalled rover's detour), only the drives
+    # the checks allow whose length + cost to go over the shield's map (the detour's search) lies within
+    # route_tolerance m of the least are open to the policy, its most probable of them driven: the policy
+    # chooses among the ways to the goal its map shows, not against them (diana_lab.detour); off: false
+    route: bool = False
+    route_tolerance: float = 1.0  # m
+    # the search's cost of slope (the detour's and the route rule's): a cell whose map slope (the steepest, from
+    # its 4 neighbours) lies over slope_cost_from_deg costs its length times 1 + slope_cost_weight x (the excess
+    # over the span up to slope_cost_to_deg, at most 1)^2, as the A* oracle's cost map charges wheel pitch;
+    # 0: every drivable cell costs its length
+    slope_cost_weight: float = 0.0
+    slope_cost_from_deg: float = 15.0
+    slope_cost_to_deg: float = 22.0
     # depth cameras that feed only the shield's map (ShieldCameraConfig); []: the env sensor's returns alone
     cameras: list[ShieldCameraConfig] = field(default_factory=list)
 
@@ -154,6 +167,17 @@ class ShieldConfig:
                     f"hfov_deg, vfov_deg, max_range), got {camera!r}"
                 )
             camera.check(f"eval.shield.cameras[{i}]")
+        if not isinstance(self.route, bool):
+            raise ConfigError(f"eval.shield.route: expected true or false, got {self.route!r}")
+        non_negative("eval.shield.route_tolerance", self.route_tolerance)
+        non_negative("eval.shield.slope_cost_weight", self.slope_cost_weight)
+        in_range("eval.shield.slope_cost_from_deg", self.slope_cost_from_deg, 0.0, 90.0, inclusive=False)
+        in_range("eval.shield.slope_cost_to_deg", self.slope_cost_to_deg, 0.0, 90.0, inclusive=False)
+        if not self.slope_cost_from_deg < self.slope_cost_to_deg:
+            raise ConfigError(
+                f"eval.shield.slope_cost_to_deg: expected more than eval.shield.slope_cost_from_deg "
+                f"({self.slope_cost_from_deg}), got {self.slope_cost_to_deg}"
+            )
         positive("eval.shield.detour_progress", self.detour_progress)
         positive("eval.shield.detour_margin", self.detour_margin)
         non_negative("eval.shield.smooth_roughness", self.smooth_roughness)

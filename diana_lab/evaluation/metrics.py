@@ -27,11 +27,13 @@ Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 
 # the summary's keys, in order; each one but ``episodes`` and ``min_speed_mps`` also gets ``<key>_ci95``; a policy
 # behind the slope shield adds ``shield_veto_rate``, ``shield_revisit_rate``, ``shield_fallback_rate``,
-# ``shield_approach_rate``, ``shield_detour_rate`` and ``shield_<check>_veto_rate`` (and their intervals) after them
+# ``shield_approach_rate``, ``shield_detour_rate``, ``shield_route_rate`` and ``shield_<check>_veto_rate`` (and their
+# intervals) after them
 # per-step rates from optional per-episode counts, (column, summary key), in the summary's order: behind the slope
 # shield the decisions it changed, those its place rule changed (eval.shield.revisit_radius), those that found no
 # candidate allowed (its tilt check dropped), those its final approach made (eval.shield.approach_radius), those its
-# detour made (eval.shield.detour_after), and the vetoes put down to each check (one veto can fail several); with
+# detour made (eval.shield.detour_after), those its route rule turned from the policy's choice (eval.shield.route),
+# and the vetoes put down to each check (one veto can fail several); with
 # the rover's tilt guard, the waypoints it halted
 PER_STEP_RATES = (
     ("shield_vetoes", "shield_veto_rate"),
@@ -39,6 +41,7 @@ PER_STEP_RATES = (
     ("shield_fallbacks", "shield_fallback_rate"),
     ("shield_approaches", "shield_approach_rate"),
     ("shield_detours", "shield_detour_rate"),
+    ("shield_routes", "shield_route_rate"),
     *((f"shield_{check}_vetoes", f"shield_{check}_veto_rate") for check in VETO_CHECKS),
     ("halts", "halt_rate"),
 )

@@ -178,6 +178,7 @@ class ShieldedPolicy:
             "shield_fallbacks": shield.fallbacks,
             "shield_approaches": shield.approaches,
             "shield_detours": shield.detours,
+            "shield_routes": shield.routes,
         }
         counts.update({f"shield_{check}_vetoes": shield.vetoed_by[check] for check in VETO_CHECKS})
         return counts
@@ -189,7 +190,9 @@ class ShieldedPolicy:
         ``shield_fallbacks``, the decisions that found no candidate allowed (its tilt check then dropped), and
         ``shield_approaches``, those its final approach made (``eval.shield.approach_radius``: the goal in reach,
         the straight drive for it allowed; not counted as vetoes), and ``shield_detours``, those its detour made
-        (``eval.shield.detour_after``: no progress for that many decisions; not counted as vetoes); and per check,
+        (``eval.shield.detour_after``: no progress for that many decisions; not counted as vetoes), and
+        ``shield_routes``, those its route rule turned from the policy's choice (``eval.shield.route``; not counted
+        as vetoes); and per check,
         ``shield_<check>_vetoes``, the vetoes whose policy's choice failed that check (``tilt``, ``hazard``,
         ``obstacle``, ``peak``; ``place``: it passed them all and the place rule turned from it), one veto counting
         under each check it failed."""

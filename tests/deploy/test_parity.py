@@ -235,6 +235,34 @@ def test_with_hazard_cameras_and_the_relief_check_the_runtime_drives_like_the_si
         nav.map_for_shield(rec.poses[0], fed[0][0][0], (0.0, 1.0))
 
 
+def test_with_the_route_rule_the_runtime_drives_like_the_simulator(tmp_path, small_world):
+    """``eval.shield.route`` (and the search's slope cost) in the sidecar: at every decision the runtime opens the
+    same drives to the policy as the simulator's shield, and turns from its choice the same times."""
+    shield = [
+        "eval.shield.enabled=true",
+        "eval.shield.radius=20",
+        "eval.shield.limit_deg=8",  # strict on this small world: walls for the search
+        "eval.shield.route=true",
+        "eval.shield.route_tolerance=0.5",
+        "eval.shield.slope_cost_weight=10",
+        "eval.shield.slope_cost_from_deg=2",
+        "eval.shield.slope_cost_to_deg=8",
+    ]
+    run = export_run(tmp_path / "run", run_config(*SHIELDED_RUN), small_world, True, *shield)
+    try:
+        policy = run.loaded.policy
+        rec = record(run.env, policy, 120, seed=2)
+        nav = Navigator.from_files(run.onnx)
+        err = replay(nav, rec)
+    finally:
+        run.env.close()
+    print(f"route-rule parity over 120 decisions: {err}; routes {policy.shield.routes}")
+    assert nav.spec.shield["route"] is True and nav.spec.shield["route_tolerance"] == 0.5
+    assert nav.spec.shield["slope_cost_weight"] == 10.0
+    assert nav.shield.routes == policy.shield.routes > 5  # the rule turned from the policy, the same times
+    assert err["waypoint"] <= TOLERANCE_M
+
+
 def test_map_for_shield_needs_a_shield_and_a_camera_position(depth_run):
     nav = Navigator.from_files(depth_run.onnx)
     with pytest.raises(ValueError, match="no slope shield"):
