@@ -94,9 +94,11 @@ def test_bad_camera_and_relief_settings_name_their_key(override, key):
         to_object("eval", compose([override]).eval)
 
 
-def test_the_hazard_camera_preset_composes_the_reference_with_four_cameras_and_the_relief_check():
+def test_the_hazard_camera_preset_composes_the_reference_with_four_cameras_the_relief_check_and_the_route_rule():
     ev = to_object("eval", compose(["+experiment=reference_hazcams"]).eval)
     assert ev.shield.enabled and ev.shield.relief and ev.shield.detour_after == 2
+    assert ev.shield.route and (ev.shield.route_tolerance, ev.shield.slope_cost_weight) == (1.0, 10.0)
+    assert not to_object("eval", compose(["+experiment=reference"]).eval).shield.route  # v0.13 unchanged
     assert (ev.shield.relief_unseen_from, ev.shield.relief_min_known) == (0.8, 11)
     assert sorted(c.yaw_deg for c in ev.shield.cameras) == [-90.0, 0.0, 90.0, 180.0]
     assert ev.shield.limit_deg == to_object("eval", compose(["+experiment=reference"]).eval).shield.limit_deg
