@@ -50,6 +50,7 @@ from diana_lab.evaluation.policies import Policy, SB3Policy, ShieldedPolicy, Str
 
 __all__ = [
     "BASELINES",
+    "POLICY_NAMES",
     "PRETRAINED_DIR",
     "LoadedPolicy",
     "check_action_space",
@@ -296,6 +297,8 @@ BASELINES: dict[str, Callable[[], Policy]] = {
     # the imitation expert of the reference policy's v0.1 (train.imitation.expert=astar_memory, knowledge_radius 12 m)
     "astar_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=12.0, knowledge_memory=True),
 }
+# every policy ``policy=`` accepts by name besides ``pretrained`` (the baselines, and those that read the config)
+POLICY_NAMES = (*BASELINES, "astar_perceived", "astar_seen", "cost_to_go_bound")
 
 
 def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
@@ -361,7 +364,7 @@ def _load(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_run(spec, cfg, eval_cfg)
     raise UserError(
         f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected a baseline "
-        f"({', '.join(BASELINES)}, astar_perceived, astar_seen, cost_to_go_bound), 'pretrained', the path of a "
+        f"({', '.join(POLICY_NAMES)}), 'pretrained', the path of a "
         "Stable-Baselines3 .zip (with vecnormalize.pkl beside it if the run normalised observations) or an MLflow "
         "run id (32 hex digits)."
     )

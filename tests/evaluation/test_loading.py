@@ -1,3 +1,6 @@
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from gymnasium import spaces
@@ -6,6 +9,7 @@ from diana_lab.cli import UserError
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.evaluation import run_suite
 from diana_lab.evaluation.loading import (
+    POLICY_NAMES,
     check_action_space,
     check_observation_space,
     config_differences,
@@ -164,3 +168,15 @@ def test_rerun_advice_names_the_trainings_env_overrides_the_command_line_lacks(t
     (hydra / "overrides.yaml").write_text("- +experiment=quick\n- sensor.width=16\n")
     assert recorded_overrides(hydra / "config.yaml") == ["+experiment=quick", "sensor.width=16"]
     assert recorded_overrides(None) is None
+
+
+def test_the_readmes_list_of_policies_is_the_one_the_program_accepts_and_names():
+    """The README's Commands table left out ``astar_memory`` and ``cost_to_go_bound``."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    listed = re.search(r"python -m diana_lab\.evaluate policy=<([^>]*)>", readme)
+    assert listed is not None
+    assert [n.strip() for n in listed.group(1).split(",")] == ["run id", "model path", "pretrained", *POLICY_NAMES]
+    cfg = compose([])
+    with pytest.raises(UserError, match="policy=astr: no such model file") as err:
+        load_policy("astr", cfg, to_object("eval", cfg.eval))
+    assert f"({', '.join(POLICY_NAMES)})" in str(err.value)
