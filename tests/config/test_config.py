@@ -92,6 +92,16 @@ def test_misspelt_keys_types_and_options_fail_at_composition(overrides):
     assert any(part in text for part in ("size_xx", "size_x", "moon", "rover9000"))
 
 
+def test_flags_read_the_words_the_readme_lists_and_refuse_others():
+    """README, Reliability: true/false, yes/no, y/n, on/off (any case) and integers; another word is Hydra's error."""
+    words = {"true": True, "No": False, "y": True, "OFF": False, "on": True, "0": False, "2": True}
+    for word, value in words.items():
+        assert compose([f"eval.video={word}"]).eval.video is value, word
+    with pytest.raises(Exception, match=r"eval\.video=maybe") as err:
+        compose(["eval.video=maybe"])
+    assert "not a valid bool" in str(err.value.__cause__)
+
+
 def test_cfg_job_prints_the_composed_config():
     out = subprocess.run(
         [sys.executable, "-m", "diana_lab", "--cfg", "job", "world=flat"],

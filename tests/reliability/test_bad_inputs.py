@@ -60,6 +60,7 @@ ROWS = [
     Bad("misspelt-group-option", TRAIN, ("world=marsyard",), ("world/marsyard", "mars_yard"), 1),
     Bad("misspelt-key", TRAIN, ("world.sizex=3",), ("world.sizex",), 1),
     Bad("wrong-type", TRAIN, ("train.total_timesteps=abc",), ("train.total_timesteps", "Integer"), 1),
+    Bad("flag-not-a-bool", EVAL, ("policy=straight", "eval.video=maybe"), ("eval.video", "not a valid bool"), 1),
     Bad("unknown-algorithm", TRAIN, ("algo=ppx",), ("algo/ppx", "ppo"), 1),
     Bad("reward-weight-type", TRAIN, ("reward.terms.progress.weight=abc",), ("reward.terms.progress.weight",), 1),
     Bad("key-of-another-option", TRAIN, ("sensor=lidar3d", "sensor.width=16"), ("sensor.width", "Lidar3d"), 1),
