@@ -62,6 +62,20 @@ def test_impossible_values_name_the_key(overrides, key):
         validate(cfg)
 
 
+def test_a_required_key_left_out_is_named_with_what_it_is():
+    """``world=dem`` without ``world.size_x`` read "world: Structured config of type DemConfig has missing
+    mandatory value: size_x"."""
+    with pytest.raises(ConfigError) as err:
+        validate(compose(["world=dem", "world.path=site.npy", "world.size_y=60"]), ["world"])
+    assert str(err.value) == "world.size_x: missing, and required for world=dem: the DEM's extent along x in metres"
+    with pytest.raises(ConfigError) as err:
+        to_object("world", "dem")  # every one missing: each named, in the schema's order
+    message = str(err.value)
+    assert message.startswith("world.path: missing, and required for world=dem: the elevation file")
+    assert "; world.size_x: missing" in message and "; world.size_y: missing" in message
+    assert "Structured config" not in message
+
+
 def test_discrete_action_space_composes_with_the_on_policy_algos_only():
     for algo in ("ppo", "a2c"):
         objects = validate(compose(["action_space=discrete", f"algo={algo}"]), [*GROUPS, "algo"])
