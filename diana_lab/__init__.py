@@ -5,7 +5,7 @@ nothing heavy: torch, PyBullet and open3d are imported only by the modules that 
 (a rover computer running only :mod:`diana_lab.deploy` with numpy and onnxruntime) the package still imports.
 """
 
-from diana_lab.envs import ENV_ID
+from diana_lab.envs import ENV_ID, ActionError
 
 __version__ = "0.1.0"
 
@@ -16,4 +16,4 @@ except ImportError:  # pragma: no cover - deployment installs without gymnasium
 else:
     _register(id=ENV_ID, entry_point="diana_lab.envs.rover_nav:RoverNavEnv")
 
-__all__ = ["ENV_ID", "__version__"]
+__all__ = ["ENV_ID", "ActionError", "__version__"]

@@ -8,8 +8,11 @@ run directory; ``output=`` also writes the summary JSON there. ``policy=`` is ``
 without them is refused) or the MLflow run id of a training run (see :mod:`diana_lab.evaluation.loading`)::
 
     python -m diana_lab.evaluate policy=astar world=mars_yard eval.episodes=100 output=astar.json
-    python -m diana_lab.evaluate policy=<run id> eval.dynamics=physics   # kinematic-trained, in physics
-    python -m diana_lab.evaluate policy=model.zip eval.sensor_noise=[0,0.5,1,2]
+    python -m diana_lab.evaluate policy=<run id> +experiment=quick eval.dynamics=physics   # kinematic-trained
+    python -m diana_lab.evaluate policy=model.zip +experiment=quick eval.sensor_noise=[0,0.5,1,2]
+
+The env is the command line's: repeat the overrides the policy was trained with (``+experiment=quick`` above);
+a refusal names those of the training's overrides the command line lacks, when the run recorded them.
 
 * ``eval.dynamics`` null means the training's dynamics: the run's own when the policy comes with its
   training config (a run id, ``pretrained``, or a model with ``.hydra/config.yaml`` beside it), else the
@@ -95,10 +98,16 @@ def env_config(
     return env_cfg
 
 
-def _check_spaces(loaded: Any, env: Any, cfg: DictConfig) -> None:
+def _check_spaces(loaded: Any, env: Any, cfg: DictConfig, overrides: Sequence[str] = ()) -> None:
     """Refuse a model trained on other observations or actions than ``env``'s, naming the config keys that
-    differ from its training's (and the preset of the shipped policy, when left out)."""
-    from diana_lab.evaluation.loading import check_action_space, check_observation_space, config_differences
+    differ from its training's (and the preset of the shipped policy, when left out), and ending with the
+    training's overrides that ``overrides``, this command line's, lacks (or, not recorded, to repeat them)."""
+    from diana_lab.evaluation.loading import (
+        check_action_space,
+        check_observation_space,
+        config_differences,
+        rerun_advice,
+    )
 
     def hints(*groups: str) -> list[str]:
         diffs = config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
@@ -107,9 +116,12 @@ def _check_spaces(loaded: Any, env: Any, cfg: DictConfig) -> None:
             return ["add +experiment=reference (the shipped policy's training preset)", *diffs]
         return diffs
 
+    # the shipped policy's preset is said above; a model without its training config gets the generic hint
+    known = loaded.train_cfg is not None and loaded.label != "pretrained"
+    advice = rerun_advice(loaded.train_overrides, overrides) if known else None
     model = loaded.model
-    check_observation_space(model.observation_space, env.observation_space, loaded.label, hints())
-    check_action_space(model.action_space, env.action_space, loaded.label, hints("action_space"))
+    check_observation_space(model.observation_space, env.observation_space, loaded.label, hints(), advice)
+    check_action_space(model.action_space, env.action_space, loaded.label, hints("action_space"), advice)
 
 
 def _table(summaries: dict[str, dict[str, Any]], index: str) -> str:
@@ -119,9 +131,12 @@ def _table(summaries: dict[str, dict[str, Any]], index: str) -> str:
     return table.to_string(formatters={"episodes": lambda v: f"{int(v)}"}, float_format=lambda v: f"{v:.3f}")
 
 
-def run(cfg: DictConfig, out_dir: Path, dynamics_keys: Sequence[str] = ()) -> dict[str, Any]:
+def run(
+    cfg: DictConfig, out_dir: Path, dynamics_keys: Sequence[str] = (), overrides: Sequence[str] = ()
+) -> dict[str, Any]:
     """The evaluation behind the command (testable without Hydra); returns what ``output`` receives.
-    ``dynamics_keys``: :func:`chosen_dynamics`'s."""
+    ``dynamics_keys``: :func:`chosen_dynamics`'s; ``overrides``: the command line's (a refusal of a model
+    trained in another env names the training's overrides missing from them)."""
     from diana_lab.config import to_object
     from diana_lab.envs.rover_nav import RoverNavEnv
     from diana_lab.evaluation.core import evaluate, sweep_sensor_noise
@@ -150,7 +165,7 @@ def run(cfg: DictConfig, out_dir: Path, dynamics_keys: Sequence[str] = ()) -> di
     env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg, dynamics_keys))
     try:
         if loaded.model is not None:
-            _check_spaces(loaded, env, cfg)
+            _check_spaces(loaded, env, cfg, overrides)
         if eval_cfg.sensor_noise:
             levels = sweep_sensor_noise(loaded.policy, env, eval_cfg, out_dir)
             summaries = {f"{level:g}": s for level, s in levels.items()}
@@ -190,8 +205,9 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     hydra_cfg = HydraConfig.get()
-    dynamics_keys = chosen_dynamics(cfg, list(hydra_cfg.overrides.task))
-    run(cfg, Path(hydra_cfg.runtime.output_dir), dynamics_keys)
+    overrides = list(hydra_cfg.overrides.task)
+    dynamics_keys = chosen_dynamics(cfg, overrides)
+    run(cfg, Path(hydra_cfg.runtime.output_dir), dynamics_keys, overrides)
 
 
 if __name__ == "__main__":

@@ -103,11 +103,29 @@ def to_object(group: str, node: Any) -> Any:
         if node._get_parent() is not None:  # a group of a composed config: resolve its ${...} against the root
             node = OmegaConf.create(OmegaConf.to_container(node, resolve=True))
         merged = OmegaConf.merge(OmegaConf.structured(schema), node)
+        _check_required(group, schema, merged)
         return OmegaConf.to_object(merged)
     except ConfigError:
         raise
     except Exception as exc:  # OmegaConf validation errors: re-raise with the group name in front
         raise ConfigError(f"{group}: {exc}".split("\n    full_key")[0]) from exc
+
+
+def _check_required(group: str, schema: type, node: DictConfig) -> None:
+    """Name the keys of ``node`` left ``???`` (``world=dem`` without ``world.size_x``) and what each is, from
+    its schema field's ``help`` metadata; OmegaConf would say only "missing mandatory value: size_x"."""
+    missing = [str(k) for k in node if OmegaConf.is_missing(node, k)]
+    if not missing:
+        return
+    helps = {f.name: f.metadata.get("help") for f in dataclasses.fields(schema)}
+    option = f" for {group}={node.name}" if "name" not in missing and node.get("name") else ""
+    raise ConfigError(
+        "; ".join(
+            f"{group}.{k}: missing, and required{option}"
+            + (f": {helps[k]}" if helps.get(k) else " (it has no default)")
+            for k in missing
+        )
+    )
 
 
 def validate(cfg: DictConfig, groups: Sequence[str] = GROUPS, combinations: bool = True) -> dict[str, Any]:

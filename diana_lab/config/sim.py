@@ -94,9 +94,10 @@ class DemConfig(WorldConfig):
 
     _target_: str = "diana_lab.sim.worlds.dem"
     name: str = "dem"
-    path: str = MISSING
-    size_x: float = MISSING
-    size_y: float = MISSING
+    # required: ``help`` is what the refusal of a command line without them says (diana_lab.config.to_object)
+    path: str = field(default=MISSING, metadata={"help": "the elevation file (GeoTIFF/TIFF, 8/16-bit PNG or .npy)"})
+    size_x: float = field(default=MISSING, metadata={"help": "the DEM's extent along x in metres"})
+    size_y: float = field(default=MISSING, metadata={"help": "the DEM's extent along y in metres"})
     height_scale: float = 1.0
     height_offset: float = 0.0
     obstacles: list[str] = field(default_factory=list)

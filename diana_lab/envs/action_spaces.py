@@ -20,13 +20,10 @@ from gymnasium import spaces
 
 from diana_lab.candidates import candidate_offsets, turned
 from diana_lab.config.env import ActionSpaceConfig
+from diana_lab.envs import ActionError  # defined there, free of imports: diana_lab.ActionError
 
 QUARTER_PI = math.pi / 4.0
 TIE_M2 = 1e-9  # squared distances (m^2) this close count as a tie in WaypointMapping.action_for
-
-
-class ActionError(ValueError):
-    """An action the env cannot execute (wrong shape, NaN or infinite values, a candidate index out of range)."""
 
 
 def square_to_disc(a: np.ndarray) -> np.ndarray:

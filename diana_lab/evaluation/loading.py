@@ -22,7 +22,9 @@ Accepted values:
 
 A model whose observation space differs from the env's (another sensor, encoding or resolution) is refused
 with a message naming the key and both shapes, and -- when the training config is known -- the config keys
-that differ, since running it would only produce a shape error deep inside torch.
+that differ, since running it would only produce a shape error deep inside torch. The message ends with what
+to do (:func:`rerun_advice`): the training's own env overrides, when its ``.hydra/overrides.yaml`` was kept
+(beside its ``config.yaml``, among a run's artefacts), else to repeat the overrides it was trained with.
 """
 
 from __future__ import annotations
@@ -30,9 +32,10 @@ from __future__ import annotations
 import contextlib
 import json
 import re
+import shlex
 import tempfile
 import zipfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -41,12 +44,13 @@ from gymnasium import spaces
 from omegaconf import DictConfig, ListConfig, OmegaConf
 
 from diana_lab.cli import UserError
-from diana_lab.config import ConfigError
+from diana_lab.config import GROUPS, ConfigError
 from diana_lab.evaluation.oracle import AStarOracle
 from diana_lab.evaluation.policies import Policy, SB3Policy, ShieldedPolicy, StraightLine
 
 __all__ = [
     "BASELINES",
+    "POLICY_NAMES",
     "PRETRAINED_DIR",
     "LoadedPolicy",
     "check_action_space",
@@ -54,14 +58,17 @@ __all__ = [
     "flat_keys",
     "load_policy",
     "load_sb3",
+    "recorded_overrides",
+    "rerun_advice",
 ]
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "assets" / "policies" / "reference"
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
-MODEL_ARTIFACT, VECNORM_ARTIFACT, CONFIG_ARTIFACT = (
+MODEL_ARTIFACT, VECNORM_ARTIFACT, CONFIG_ARTIFACT, OVERRIDES_ARTIFACT = (
     "model/model.zip",
     "model/vecnormalize.pkl",
     ".hydra/config.yaml",
+    ".hydra/overrides.yaml",  # the training's command-line overrides, as Hydra writes them
 )
 
 # the module of a saved policy class -> the algorithm that loads it (on-policy actor-critics load as PPO:
@@ -101,6 +108,45 @@ class LoadedPolicy:
     train_cfg: DictConfig | None = None  # the training's resolved config, when known
     model: Any = None  # the SB3 model, when there is one
     note: str | None = None  # what a user should know about it (the shipped policy's card summary)
+    train_overrides: list[str] | None = None  # the training's command-line overrides, when recorded
+
+
+def recorded_overrides(config: Path | None) -> list[str] | None:
+    """The command-line overrides of the training whose ``.hydra/config.yaml`` is ``config``: Hydra's
+    ``overrides.yaml`` beside it; ``None`` when it is not there (a model copied without it, the shipped policy)."""
+    path = config.with_name("overrides.yaml") if config is not None else None
+    if path is None or not path.is_file():
+        return None
+    try:
+        loaded = OmegaConf.load(path)
+    except Exception:  # unreadable: as good as not recorded
+        return None
+    return [str(o) for o in loaded] if isinstance(loaded, ListConfig) else None
+
+
+# what an override sets the env with: a group of the env, or the preset that sets them (+experiment=quick)
+_ENV_ROOTS = (*GROUPS, "experiment")
+
+
+def _env_override(override: str) -> bool:
+    key = override.lstrip("+~").split("=", 1)[0]
+    return key.split(".", 1)[0].split("@", 1)[0] in _ENV_ROOTS
+
+
+def rerun_advice(train_overrides: Sequence[str] | None, given: Sequence[str] = ()) -> str:
+    """The end of a refusal of a model trained in another env than this command's: the training's overrides
+    of the env (its groups and ``+experiment``) that ``given``, this command line's, lacks, ready to paste."""
+    if train_overrides is None:
+        return "Re-run with the overrides it was trained with (they are not recorded with the model)."
+    env = [o for o in train_overrides if _env_override(o)]
+    missing = [o for o in env if o not in set(given)]
+    if missing:
+        return f"Re-run with the training's overrides: {' '.join(shlex.quote(o) for o in missing)}"
+    if not env:
+        return "It was trained with the default env (no env overrides): drop the overrides that change these keys."
+    return (
+        f"It was trained with {' '.join(shlex.quote(o) for o in env)}: drop the other overrides that change these keys."
+    )
 
 
 def _train_config(path: Path | None) -> DictConfig | None:
@@ -192,6 +238,7 @@ def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: st
         None,
     )
     train_cfg = _train_config(cfg_path)
+    overrides = recorded_overrides(cfg_path) if train_cfg is not None else None
     policy, model = load_sb3(
         model_zip,
         _vecnormalize_file(model_zip, train_cfg),
@@ -199,7 +246,7 @@ def _from_dir(root: Path, model_zip: Path, eval_cfg: Any, label: str, run_id: st
         deterministic=eval_cfg.deterministic,
         seed=eval_cfg.seed,
     )
-    return LoadedPolicy(policy, label, run_id, train_cfg, model)
+    return LoadedPolicy(policy, label, run_id, train_cfg, model, train_overrides=overrides)
 
 
 def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
@@ -229,7 +276,8 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
                 f"from tracking URI '{mlflow.get_tracking_uri()}' ({str(exc).splitlines()[0]}); check "
                 "tracking.uri and that the run finished training"
             ) from exc
-        for extra in (VECNORM_ARTIFACT, CONFIG_ARTIFACT):  # optional: a run without VecNormalize, say
+        # optional: a run without VecNormalize, say, or logged without Hydra (no .hydra/)
+        for extra in (VECNORM_ARTIFACT, CONFIG_ARTIFACT, OVERRIDES_ARTIFACT):
             with contextlib.suppress(MlflowException, OSError):
                 mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=extra, dst_path=str(dst))
         return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
@@ -249,6 +297,8 @@ BASELINES: dict[str, Callable[[], Policy]] = {
     # the imitation expert of the reference policy's v0.1 (train.imitation.expert=astar_memory, knowledge_radius 12 m)
     "astar_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=12.0, knowledge_memory=True),
 }
+# every policy ``policy=`` accepts by name besides ``pretrained`` (the baselines, and those that read the config)
+POLICY_NAMES = (*BASELINES, "astar_perceived", "astar_seen", "cost_to_go_bound")
 
 
 def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
@@ -314,7 +364,7 @@ def _load(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_run(spec, cfg, eval_cfg)
     raise UserError(
         f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected a baseline "
-        f"({', '.join(BASELINES)}, astar_perceived, astar_seen, cost_to_go_bound), 'pretrained', the path of a "
+        f"({', '.join(POLICY_NAMES)}), 'pretrained', the path of a "
         "Stable-Baselines3 .zip (with vecnormalize.pkl beside it if the run normalised observations) or an MLflow "
         "run id (32 hex digits)."
     )
@@ -363,10 +413,15 @@ def config_differences(
 
 
 def check_observation_space(
-    model_space: spaces.Space, env_space: spaces.Space, label: str, hints: list[str] | None = None
+    model_space: spaces.Space,
+    env_space: spaces.Space,
+    label: str,
+    hints: list[str] | None = None,
+    advice: str | None = None,
 ) -> None:
     """Refuse a policy trained on other observations (keys, shapes, dtypes); bounds may differ (goal distance
-    bounds follow the world size, and the policy only ever sees the clipped values)."""
+    bounds follow the world size, and the policy only ever sees the clipped values). ``advice`` ends the message
+    (:func:`rerun_advice`)."""
     want, have = _shapes(model_space), _shapes(env_space)
     problems = []
     for k in sorted(set(want) | set(have)):
@@ -389,15 +444,20 @@ def check_observation_space(
         )
         raise ConfigError(
             f"policy {label}: trained with other observation settings than this evaluation: "
-            f"{'; '.join(problems)}.{hint}"
+            f"{'; '.join(problems)}.{hint}" + (f" {advice}" if advice else "")
         )
 
 
 def check_action_space(
-    model_space: spaces.Space, env_space: spaces.Space, label: str, hints: list[str] | None = None
+    model_space: spaces.Space,
+    env_space: spaces.Space,
+    label: str,
+    hints: list[str] | None = None,
+    advice: str | None = None,
 ) -> None:
     """Refuse a policy trained on another action space. A categorical policy over 16 headings in an env of 64
-    would run without a word, its indices meaning other waypoints; over 64 in an env of 16, fail mid-episode."""
+    would run without a word, its indices meaning other waypoints; over 64 in an env of 16, fail mid-episode.
+    ``advice`` ends the message (:func:`rerun_advice`)."""
 
     def describe(space: spaces.Space) -> str:
         if isinstance(space, spaces.Discrete):
@@ -417,5 +477,5 @@ def check_action_space(
         )
         raise ConfigError(
             f"policy {label}: trained on {describe(model_space)}, but this evaluation's action_space gives "
-            f"{describe(env_space)}.{hint}"
+            f"{describe(env_space)}.{hint}" + (f" {advice}" if advice else "")
         )

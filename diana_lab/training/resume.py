@@ -6,8 +6,9 @@ checkpoints dir, or a model ``.zip``. A run dir's ``run_info.json`` names its ML
 path also continues the same MLflow run when the store is the same.
 
 :func:`check_resumable` compares the env the run continues in with the one it was trained in (its
-``.hydra/config.yaml``): other observations or actions are an error naming the config keys that differ,
-other settings (reward, world, dynamics...) are allowed -- fine-tuning elsewhere is a use -- but reported.
+``.hydra/config.yaml``): other observations or actions are an error naming the config keys that differ (and
+the training's overrides to repeat, from the ``.hydra/overrides.yaml`` beside it), other settings (reward,
+world, dynamics...) are allowed -- fine-tuning elsewhere is a use -- but reported.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import contextlib
 import json
 import re
 import zipfile
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,6 +32,7 @@ __all__ = ["RUN_INFO", "ResumePoint", "check_resumable", "find_resume_point", "r
 
 RUN_INFO = "run_info.json"
 CONFIG = ".hydra/config.yaml"  # the training's composed config, in its run dir and among its MLflow artefacts
+OVERRIDES = ".hydra/overrides.yaml"  # its command line's overrides, beside it
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
 
 
@@ -122,6 +125,7 @@ def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
     config = None
     with contextlib.suppress(MlflowException, OSError):  # a run logged without its .hydra/: nothing to compare
         config = Path(client.download_artifacts(run_id, CONFIG, str(download_dir)))
+        client.download_artifacts(run_id, OVERRIDES, str(download_dir))  # beside it, for check_resumable's advice
     return ResumePoint(
         Checkpoint.at(download_dir / "checkpoints", best),
         run_id,
@@ -145,16 +149,21 @@ def find_resume_point(spec: str, uri: str | None, download_dir: Path) -> ResumeP
 
 
 def check_resumable(
-    resume: ResumePoint, cfg: DictConfig, observation_space: gym.Space, action_space: gym.Space
+    resume: ResumePoint,
+    cfg: DictConfig,
+    observation_space: gym.Space,
+    action_space: gym.Space,
+    overrides: Sequence[str] = (),
 ) -> list[str]:
     """Refuse to continue ``resume``'s model in ``cfg``'s env, whose spaces are given, when its observation or
     action space differs (SB3 would refuse too, after the MLflow run is open and without saying which setting
-    changed); return the config keys of the env groups that differ from the training's
-    (``reward.weights.goal: training 10.0, here 20.0``)."""
+    changed), ending with the training's overrides that ``overrides``, this command line's, lacks; return the
+    config keys of the env groups that differ from the training's (``reward.weights.goal: training 10.0, here
+    20.0``)."""
     from stable_baselines3.common.save_util import load_from_zip_file
 
     from diana_lab.config import GROUPS
-    from diana_lab.evaluation.loading import config_differences
+    from diana_lab.evaluation.loading import config_differences, recorded_overrides, rerun_advice
 
     train_cfg = OmegaConf.load(resume.config) if resume.config is not None else None
     diffs = config_differences(train_cfg, cfg, GROUPS)
@@ -174,8 +183,10 @@ def check_resumable(
             else:
                 shown = f"{saved} there, {here} here"
             keys = f" Differing config keys: {'; '.join(diffs[:8])}." if diffs else ""
+            advice = rerun_advice(recorded_overrides(resume.config), overrides) if train_cfg is not None else ""
             raise UserError(
                 f"train.resume: {resume.source} was trained on another {kind} space than this config gives "
                 f"({shown}); continue it with the settings it was trained with.{keys}"
+                + (f" {advice}" if advice else "")
             )
     return diffs

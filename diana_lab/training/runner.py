@@ -19,6 +19,7 @@ import math
 import sys
 import time
 import zipfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -63,10 +64,13 @@ __all__ = ["RUN_GROUPS", "train"]
 RUN_GROUPS = (*C.GROUPS, "algo", "train", "eval", "tracking")
 
 
-def _checked_resume(resume: ResumePoint, cfg: DictConfig, observation_space: Any, action_space: Any) -> ResumePoint:
+def _checked_resume(
+    resume: ResumePoint, cfg: DictConfig, observation_space: Any, action_space: Any, overrides: Sequence[str] = ()
+) -> ResumePoint:
     """``resume`` with the env settings that differ from its training's, printed: continuing on a new world or
-    reward is allowed (fine-tuning), but said; another observation or action space is an error."""
-    changes = check_resumable(resume, cfg, observation_space, action_space)
+    reward is allowed (fine-tuning), but said; another observation or action space is an error (naming the
+    training's overrides that ``overrides``, the command line's, lacks)."""
+    changes = check_resumable(resume, cfg, observation_space, action_space, overrides)
     if changes:
         listed = "\n  ".join(changes)
         print(f"train.resume: {resume.source} continues with other settings than it was trained with:\n  {listed}")
@@ -342,7 +346,7 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
         check_perceivable(cfg, "train.imitation.expert=astar_seen")
     spaces = check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
     if resume is not None:
-        resume = _checked_resume(resume, cfg, *spaces)
+        resume = _checked_resume(resume, cfg, *spaces, ctx.overrides)
     for world in training_worlds(cfg, train_cfg)[1:]:  # and so does a bad train.worlds entry
         check_env({**env_config(cfg), "world": world}, seed)
     tracker, run, status, summary = Tracker(), None, "FAILED", {}

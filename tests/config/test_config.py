@@ -62,6 +62,20 @@ def test_impossible_values_name_the_key(overrides, key):
         validate(cfg)
 
 
+def test_a_required_key_left_out_is_named_with_what_it_is():
+    """``world=dem`` without ``world.size_x`` read "world: Structured config of type DemConfig has missing
+    mandatory value: size_x"."""
+    with pytest.raises(ConfigError) as err:
+        validate(compose(["world=dem", "world.path=site.npy", "world.size_y=60"]), ["world"])
+    assert str(err.value) == "world.size_x: missing, and required for world=dem: the DEM's extent along x in metres"
+    with pytest.raises(ConfigError) as err:
+        to_object("world", "dem")  # every one missing: each named, in the schema's order
+    message = str(err.value)
+    assert message.startswith("world.path: missing, and required for world=dem: the elevation file")
+    assert "; world.size_x: missing" in message and "; world.size_y: missing" in message
+    assert "Structured config" not in message
+
+
 def test_discrete_action_space_composes_with_the_on_policy_algos_only():
     for algo in ("ppo", "a2c"):
         objects = validate(compose(["action_space=discrete", f"algo={algo}"]), [*GROUPS, "algo"])
@@ -90,6 +104,16 @@ def test_misspelt_keys_types_and_options_fail_at_composition(overrides):
         compose(overrides)
     text = str(err.value)
     assert any(part in text for part in ("size_xx", "size_x", "moon", "rover9000"))
+
+
+def test_flags_read_the_words_the_readme_lists_and_refuse_others():
+    """README, Reliability: true/false, yes/no, y/n, on/off (any case) and integers; another word is Hydra's error."""
+    words = {"true": True, "No": False, "y": True, "OFF": False, "on": True, "0": False, "2": True}
+    for word, value in words.items():
+        assert compose([f"eval.video={word}"]).eval.video is value, word
+    with pytest.raises(Exception, match=r"eval\.video=maybe") as err:
+        compose(["eval.video=maybe"])
+    assert "not a valid bool" in str(err.value.__cause__)
 
 
 def test_cfg_job_prints_the_composed_config():

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
-import diana_lab  # noqa: F401  (registers the env)
-from diana_lab.envs.action_spaces import ActionError
+import diana_lab  # registers the env
+from diana_lab.envs import ActionError
 from diana_lab.envs.rover_nav import RoverNavEnv
 
 
@@ -185,6 +185,18 @@ def test_bad_actions_raise_a_clear_error():
         env.step(np.array([1.0, 0.0], dtype=np.float32))  # a continuous policy's action on a discrete env
     with pytest.raises(ActionError, match="outside"):
         env.step(48)
+
+
+def test_action_error_is_importable_where_users_look():
+    """``from diana_lab import ActionError`` failed: it lived only in diana_lab.envs.action_spaces."""
+    from diana_lab.envs import action_spaces
+
+    assert diana_lab.ActionError is ActionError is action_spaces.ActionError
+    assert issubclass(ActionError, ValueError) and "ActionError" in diana_lab.__all__
+    env = make()
+    env.reset(seed=0)
+    with pytest.raises(diana_lab.ActionError, match="shape"):
+        env.step(np.zeros(3, dtype=np.float32))
 
 
 def test_waypoints_are_clamped_to_the_map():

@@ -158,3 +158,39 @@ def test_evaluating_on_another_robot_than_the_trainings_is_said(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     assert "trained on robot=jackal; evaluating it on robot=husky" in proc.stdout
+
+
+def test_a_run_evaluated_without_its_trainings_overrides_is_told_which_to_add(tmp_path):
+    """``policy=<run id of a +experiment=quick run>`` without the preset was refused naming only the config keys
+    that differ; the message ends with the training's own overrides to add, and adding them is enough."""
+    from mlflow.tracking import MlflowClient
+
+    from tests.reliability.helpers import run_cli
+
+    store = [f"tracking.uri=sqlite:///{tmp_path}/mlflow.db"]
+    budget = [  # +experiment=quick, trained for one tiny update
+        "train.total_timesteps=32",
+        "train.n_envs=1",
+        "train.checkpoint_every=0",
+        "train.progress_bar=false",
+        "train.final_eval=false",
+        "eval.every=0",
+        "algo.n_steps=32",
+        "algo.batch_size=32",
+        "algo.n_epochs=1",
+        "hydra/job_logging=disabled",
+        "hydra/hydra_logging=disabled",
+    ]
+    trained = run_cli("diana_lab", ["+experiment=quick", *budget, *store, f"hydra.run.dir={tmp_path}/train"], tmp_path)
+    assert trained.returncode == 0, trained.stderr
+    client = MlflowClient(store[0].split("=", 1)[1])
+    (run,) = client.search_runs([client.get_experiment_by_name("diana_lab").experiment_id])
+
+    args = [f"policy={run.info.run_id}", *store, "tracking.enabled=false", "eval.episodes=1", "eval.plots=false"]
+    proc = evaluate_cli(tmp_path / "plain", *args)
+    assert proc.returncode == 2, proc.stderr
+    message = proc.stderr.split("\n(set HYDRA_FULL_ERROR")[0]
+    assert "sensor.width: training 16, here 64" in message and "Traceback" not in message
+    assert message.endswith("Re-run with the training's overrides: +experiment=quick"), message
+    proc = evaluate_cli(tmp_path / "with_preset", *args, "+experiment=quick")
+    assert proc.returncode == 0, proc.stderr

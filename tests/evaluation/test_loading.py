@@ -1,3 +1,6 @@
+import re
+from pathlib import Path
+
 import numpy as np
 import pytest
 from gymnasium import spaces
@@ -6,10 +9,13 @@ from diana_lab.cli import UserError
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.evaluation import run_suite
 from diana_lab.evaluation.loading import (
+    POLICY_NAMES,
     check_action_space,
     check_observation_space,
     config_differences,
     load_policy,
+    recorded_overrides,
+    rerun_advice,
 )
 from diana_lab.evaluation.suite import EpisodeSpec
 
@@ -140,3 +146,37 @@ def test_a_run_id_in_a_store_that_does_not_exist_is_refused_without_creating_it(
     with pytest.raises(UserError, match=r"policy=0123456789abcdef0123456789abcdef: .*tracking\.uri=.*has no store"):
         load_policy("0123456789abcdef0123456789abcdef", cfg, to_object("eval", cfg.eval))
     assert not db.exists()
+
+
+def test_rerun_advice_names_the_trainings_env_overrides_the_command_line_lacks(tmp_path):
+    """A run id or model path evaluated without the training's overrides (``+experiment=quick``) used to be
+    refused naming only the config keys that differ; the message now ends with what to add."""
+    trained = ["+experiment=quick", "sensor.width=16", "train.total_timesteps=256", "seed=3", "'algo.net_arch=[8]'"]
+    advice = rerun_advice(trained, ["policy=abc", "eval.episodes=2"])
+    assert advice == "Re-run with the training's overrides: +experiment=quick sensor.width=16"  # env keys only
+    assert rerun_advice(trained, ["+experiment=quick"]).endswith("overrides: sensor.width=16")
+    assert rerun_advice(["world.obstacles=[a.obj,b.obj]"]).endswith("'world.obstacles=[a.obj,b.obj]'")  # pastable
+    # every one given already: the mismatch is the command line's own
+    assert "drop the other overrides" in rerun_advice(["sensor.width=16"], ["sensor.width=16", "sensor.width=32"])
+    assert "default env" in rerun_advice(["train.total_timesteps=256"], ["sensor.width=32"])
+    assert "not recorded" in rerun_advice(None)
+
+    hydra = tmp_path / ".hydra"
+    hydra.mkdir()
+    (hydra / "config.yaml").write_text("seed: 0\n")
+    assert recorded_overrides(hydra / "config.yaml") is None  # Hydra's overrides.yaml not kept
+    (hydra / "overrides.yaml").write_text("- +experiment=quick\n- sensor.width=16\n")
+    assert recorded_overrides(hydra / "config.yaml") == ["+experiment=quick", "sensor.width=16"]
+    assert recorded_overrides(None) is None
+
+
+def test_the_readmes_list_of_policies_is_the_one_the_program_accepts_and_names():
+    """The README's Commands table left out ``astar_memory`` and ``cost_to_go_bound``."""
+    readme = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    listed = re.search(r"python -m diana_lab\.evaluate policy=<([^>]*)>", readme)
+    assert listed is not None
+    assert [n.strip() for n in listed.group(1).split(",")] == ["run id", "model path", "pretrained", *POLICY_NAMES]
+    cfg = compose([])
+    with pytest.raises(UserError, match="policy=astr: no such model file") as err:
+        load_policy("astr", cfg, to_object("eval", cfg.eval))
+    assert f"({', '.join(POLICY_NAMES)})" in str(err.value)

@@ -90,6 +90,11 @@ def test_resume_in_another_env_is_refused_or_reported_naming_the_keys(tmp_path, 
     err = capsys.readouterr().err
     assert "observation space" in err and "sensor.width: training 16, here 32" in err
     assert client.get_run(run.info.run_id).info.status == "FINISHED"  # the run was not reopened and failed
+    # a training override left out: the message ends with it, ready to paste
+    without = [a for a in base if a != "sensor.width=16"]
+    assert run_in_process([*without, *resume, *store_args(tmp_path, "narrower")]) == 2
+    err = capsys.readouterr().err.split("\n(set HYDRA_FULL_ERROR")[0]
+    assert err.endswith("Re-run with the training's overrides: sensor.width=16"), err
 
     assert run_in_process([*base, "reward.terms.goal.weight=20", *resume, *store_args(tmp_path, "second")]) == 0
     assert "reward.terms.goal.weight: training 10.0, here 20.0" in capsys.readouterr().out
