@@ -277,8 +277,8 @@ def hazcam_latency(ctx: BenchContext) -> list[Figure]:
         runs = repeat(run, ctx.repeats)
     note = (
         f"Navigator.map_for_shield x {len(cameras)} hazard-camera frames (median {runs[0]['points']:.0f} returns a "
-        f"decision) + Navigator.next_waypoint behind the +experiment=reference_hazcams shield (relief check and route rule on), "
-        f"onnxruntime 1 thread, frames cast in the bench's world; {runs[0]['n']} decisions a run"
+        f"decision) + Navigator.next_waypoint behind the +experiment=reference_hazcams shield (relief check and "
+        f"route rule on), onnxruntime 1 thread, frames cast in the bench's world; {runs[0]['n']} decisions a run"
     )
     extra = {
         "returns_per_decision": runs[0]["points"],
