@@ -44,6 +44,20 @@ def replay(nav: Navigator, rec) -> dict[str, float]:
     return err
 
 
+def shielded_replay(tmp_path, small_world, overrides, shield, n: int):
+    """Train and export a run with ``overrides`` evaluated behind ``shield`` (its ``eval.shield.*`` overrides),
+    record ``n`` of the simulator's shielded decisions and replay them through the runtime: the simulator's
+    policy, the runtime, the recording and the largest differences."""
+    run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
+    try:
+        policy = run.loaded.policy
+        rec = record(run.env, policy, n, seed=2)
+        nav = Navigator.from_files(run.onnx)
+        return policy, nav, rec, replay(nav, rec)
+    finally:
+        run.env.close()
+
+
 def test_depth_image_waypoints_match_torch_on_1000_observations(depth_run):
     rec = record(depth_run.env, depth_run.loaded.policy, 1000, seed=3)
     nav = Navigator.from_files(depth_run.onnx)
@@ -156,14 +170,7 @@ def test_behind_the_slope_shield_the_runtime_drives_like_the_simulators_shielded
         "eval.shield.smooth_obstacle_height=0.03",
         "eval.shield.detour_after=2",  # and, stalled, drives round what its map shows blocking the goal
     ]
-    run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
-    try:
-        policy = run.loaded.policy
-        rec = record(run.env, policy, 150, seed=2)
-        nav = Navigator.from_files(run.onnx)
-        err = replay(nav, rec)
-    finally:
-        run.env.close()
+    policy, nav, rec, err = shielded_replay(tmp_path, small_world, overrides, shield, 150)
     counts = f"vetoes {policy.shield.vetoes}, approaches {policy.shield.approaches}, detours {policy.shield.detours}"
     print(f"shielded parity over 150 observations: {err}; {counts}")
     assert nav.spec.shield is not None and nav.spec.shield["limit_deg"] == 6.0
@@ -248,14 +255,7 @@ def test_with_the_route_rule_the_runtime_drives_like_the_simulator(tmp_path, sma
         "eval.shield.slope_cost_from_deg=2",
         "eval.shield.slope_cost_to_deg=8",
     ]
-    run = export_run(tmp_path / "run", run_config(*SHIELDED_RUN), small_world, True, *shield)
-    try:
-        policy = run.loaded.policy
-        rec = record(run.env, policy, 120, seed=2)
-        nav = Navigator.from_files(run.onnx)
-        err = replay(nav, rec)
-    finally:
-        run.env.close()
+    policy, nav, _, err = shielded_replay(tmp_path, small_world, SHIELDED_RUN, shield, 120)
     print(f"route-rule parity over 120 decisions: {err}; routes {policy.shield.routes}")
     assert nav.spec.shield["route"] is True and nav.spec.shield["route_tolerance"] == 0.5
     assert nav.spec.shield["slope_cost_weight"] == 10.0

@@ -165,22 +165,10 @@ def test_a_run_evaluated_without_its_trainings_overrides_is_told_which_to_add(tm
     that differ; the message ends with the training's own overrides to add, and adding them is enough."""
     from mlflow.tracking import MlflowClient
 
-    from tests.reliability.helpers import run_cli
+    from tests.reliability.helpers import QUIET, TINY_BUDGET, run_cli
 
     store = [f"tracking.uri=sqlite:///{tmp_path}/mlflow.db"]
-    budget = [  # +experiment=quick, trained for one tiny update
-        "train.total_timesteps=32",
-        "train.n_envs=1",
-        "train.checkpoint_every=0",
-        "train.progress_bar=false",
-        "train.final_eval=false",
-        "eval.every=0",
-        "algo.n_steps=32",
-        "algo.batch_size=32",
-        "algo.n_epochs=1",
-        "hydra/job_logging=disabled",
-        "hydra/hydra_logging=disabled",
-    ]
+    budget = [*TINY_BUDGET, *QUIET]  # +experiment=quick, trained for one tiny update
     trained = run_cli("diana_lab", ["+experiment=quick", *budget, *store, f"hydra.run.dir={tmp_path}/train"], tmp_path)
     assert trained.returncode == 0, trained.stderr
     client = MlflowClient(store[0].split("=", 1)[1])

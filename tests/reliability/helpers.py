@@ -7,6 +7,21 @@ import subprocess
 import sys
 from pathlib import Path
 
+# one PPO update of 32 steps in one env, nothing else run or saved on the way: any preset trained for a test
+TINY_BUDGET = [
+    "train.n_envs=1",
+    "train.total_timesteps=32",
+    "train.checkpoint_every=0",
+    "train.progress_bar=false",
+    "train.final_eval=false",
+    "eval.every=0",
+    "algo.n_steps=32",
+    "algo.batch_size=32",
+    "algo.n_epochs=1",
+]
+# and no logging set-up
+QUIET = ["hydra/job_logging=disabled", "hydra/hydra_logging=disabled"]
+
 # a 20 m flat world, a 16 x 12 camera, 32 PPO steps: a model in a few seconds (its observation space is what
 # the mismatch rows need, not its skill)
 TINY_MODEL = [
@@ -18,22 +33,13 @@ TINY_MODEL = [
     "episode.min_distance=4",
     "episode.max_distance=9",
     "episode.max_steps=10",
-    "train.n_envs=1",
-    "train.total_timesteps=32",
-    "train.checkpoint_every=0",
-    "train.progress_bar=false",
-    "train.final_eval=false",
-    "eval.every=0",
-    "algo.n_steps=32",
-    "algo.batch_size=32",
-    "algo.n_epochs=1",
+    *TINY_BUDGET,
     "algo.net_arch=[8]",
     "algo.extractor.cnn_channels=[4]",
     "algo.extractor.sensor_features=8",
     "algo.extractor.goal_hidden=[8]",
     "tracking.enabled=false",
-    "hydra/job_logging=disabled",
-    "hydra/hydra_logging=disabled",
+    *QUIET,
 ]
 
 # what the evaluation of TINY_MODEL's world needs to run a single short episode

@@ -18,6 +18,7 @@ from diana_lab.config import compose
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.physics import PhysicsDynamics
 from diana_lab.training import RunContext, train
+from tests.reliability.helpers import TINY_BUDGET
 
 SMALL = [
     "world=flat",
@@ -99,20 +100,12 @@ def test_training_continues_past_a_sim_error_with_finite_weights_and_statistics(
             "episode.max_distance=6",
             "episode.max_steps=8",
             "algo=ppo",
-            "algo.n_steps=32",
-            "algo.batch_size=32",
-            "algo.n_epochs=1",
+            *TINY_BUDGET,
             "algo.normalize=true",
             "algo.net_arch=[8]",
             "algo.extractor.cnn_channels=[4]",
             "algo.extractor.sensor_features=8",
             "algo.extractor.goal_hidden=[8]",
-            "train.n_envs=1",
-            "train.total_timesteps=32",
-            "train.checkpoint_every=0",
-            "train.progress_bar=false",
-            "train.final_eval=false",
-            "eval.every=0",
             "tracking.enabled=false",
         ]
     )
