@@ -647,7 +647,7 @@ class SlopeShield:
         if self.cfg.route and goal is not None:
             j = self.detour.route(self, offsets[top], start, goal, fresh, self.cfg.route_tolerance)
             if j is not None:
-                self.routes += j != 0
+                self.routes += int(j != 0)  # turned from the policy's choice
                 return int(top[j])
         # the policy's own choice first (v0.11 drives it at about half the yard's decisions), then the rest at once
         first_failed = self.failed_checks(start, offsets[top[0]])
