@@ -106,6 +106,30 @@ def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
 
 
 @pytest.mark.slow
+def test_the_hazard_camera_preset_clears_the_physics_bar_on_the_20_episode_physics_suite(tmp_path):
+    """``+experiment=reference_hazcams`` in physics: 19 of the 20 goals on 2026-11-24 (the 100-episode suite 0.92,
+    the validation suites 0.96 / 0.93 / 0.90), its route rule deciding; the issue's bar, 90 %, leaves one episode
+    for other CPUs' float rounding."""
+    out = tmp_path / "summary.json"
+    proc = evaluate_cli(
+        tmp_path / "run",
+        "policy=pretrained",
+        "+experiment=reference_hazcams",
+        "eval.episodes=20",
+        "eval.dynamics=physics",
+        "eval.video=false",
+        "tracking.enabled=false",
+        f"output={out}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    got = json.loads(out.read_text())
+    print({k: got[k] for k in ("success_rate", "spl", "tipover_rate", "shield_route_rate")})
+    assert got["episodes"] == 20
+    assert got["success_rate"] >= 0.9
+    assert got["shield_route_rate"] > 0.1  # the route rule, not the policy alone, chose many of the drives
+
+
+@pytest.mark.slow
 def test_the_exported_policy_drives_like_torch_on_1000_mars_yard_observations(tmp_path):
     from diana_lab.deploy import Navigator
     from diana_lab.export import main
