@@ -80,24 +80,31 @@ def test_the_card_holds_every_suite_with_every_rate():
     assert c["training"]["wall_time_min"] > 0 and c["training"]["timesteps"] > 0
 
 
+def pretrained_summary(tmp_path, preset: str, *overrides: str) -> dict:
+    """``python -m diana_lab.evaluate policy=pretrained +experiment=<preset> <overrides>`` (no video, no
+    tracking) run as a user runs it; its summary JSON."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    out = tmp_path / "summary.json"
+    proc = evaluate_cli(
+        tmp_path / "run",
+        "policy=pretrained",
+        f"+experiment={preset}",
+        *overrides,
+        "eval.video=false",
+        "tracking.enabled=false",
+        f"output={out}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(out.read_text())
+
+
 @pytest.mark.slow
 def test_the_20_episode_suite_gives_what_the_card_says(tmp_path):
     """Deterministic policy, fixed suite: the figures come back (within one episode, for other CPUs' float
     rounding), and they clear the issue's bar for this suite, 90 % success (v0.13 to v0.8: 20 of 20; v0.7 and v0.6: 19;
     v0.5: 18)."""
     want = card()["results"]["mars_yard_20"]
-    out = tmp_path / "summary.json"
-    proc = evaluate_cli(
-        tmp_path / "run",
-        "policy=pretrained",
-        "+experiment=reference",
-        "eval.episodes=20",
-        "eval.video=false",
-        "tracking.enabled=false",
-        f"output={out}",
-    )
-    assert proc.returncode == 0, proc.stderr
-    got = json.loads(out.read_text())
+    got = pretrained_summary(tmp_path, "reference", "eval.episodes=20")
     print({k: got[k] for k in RATES})
     assert got["episodes"] == 20
     assert abs(got["success_rate"] - want["success_rate"]) <= 0.05 + 1e-9
@@ -110,19 +117,7 @@ def test_the_hazard_camera_preset_clears_the_physics_bar_on_the_20_episode_physi
     """``+experiment=reference_hazcams`` in physics: 19 of the 20 goals on 2026-11-24 (the 100-episode suite 0.92,
     the validation suites 0.96 / 0.93 / 0.90), its route rule deciding; the issue's bar, 90 %, leaves one episode
     for other CPUs' float rounding."""
-    out = tmp_path / "summary.json"
-    proc = evaluate_cli(
-        tmp_path / "run",
-        "policy=pretrained",
-        "+experiment=reference_hazcams",
-        "eval.episodes=20",
-        "eval.dynamics=physics",
-        "eval.video=false",
-        "tracking.enabled=false",
-        f"output={out}",
-    )
-    assert proc.returncode == 0, proc.stderr
-    got = json.loads(out.read_text())
+    got = pretrained_summary(tmp_path, "reference_hazcams", "eval.episodes=20", "eval.dynamics=physics")
     print({k: got[k] for k in ("success_rate", "spl", "tipover_rate", "shield_route_rate")})
     assert got["episodes"] == 20
     assert got["success_rate"] >= 0.9
@@ -276,21 +271,10 @@ def sum_steps(rows: list[str]) -> int:
 def test_the_hazard_camera_preset_evaluates_it_with_the_relief_check_and_cameras(tmp_path):
     """``+experiment=reference_hazcams`` runs through the CLI: its cameras feed the shield's map, and its route rule
     turns the policy from drives the lidar-only shield lets through (two Mars-yard episodes)."""
-    runs = {}
-    for preset in ("reference", "reference_hazcams"):
-        out = tmp_path / f"{preset}.json"
-        proc = evaluate_cli(
-            tmp_path / preset,
-            "policy=pretrained",
-            f"+experiment={preset}",
-            "eval.episodes=2",
-            "eval.video=false",
-            "eval.plots=false",
-            "tracking.enabled=false",
-            f"output={out}",
-        )
-        assert proc.returncode == 0, proc.stderr
-        runs[preset] = json.loads(out.read_text())
+    runs = {
+        preset: pretrained_summary(tmp_path / preset, preset, "eval.episodes=2", "eval.plots=false")
+        for preset in ("reference", "reference_hazcams")
+    }
     assert runs["reference"]["shield_relief_veto_rate"] == 0.0
     assert runs["reference"]["shield_route_rate"] == 0.0  # the route rule is the hazard-camera preset's only
     # behind the route rule the policy's own choice is turned from on the ways its map shows, not vetoed
