@@ -15,7 +15,7 @@ it works the same on a rover). Each update writes, for every cell the frame hit,
 frame: the latest frame wins, so a spurious return (dust) is overwritten when the cell is seen again,
 instead of sticking as a maximum would. Points outside the square are dropped; window cells outside it
 are unknown. With ``mean=True`` a second layer, :attr:`HeightMemory.mean_height`, holds each cell's mean of every
-return it has had this episode (the relief check's input, :mod:`diana_lab.relief`): pooled over the frames, not
+return it has had this episode (the relief check's input, :mod:`diana_lab.shield.relief`): pooled over the frames, not
 the latest frame's, since the mean averages noise out where the highest return is biased up by it (Mars yard
 validation suite with four hazard cameras, pooled against the latest frame's: SPL 0.765 / 0.716, physics 0.81 /
 0.77).
@@ -59,8 +59,9 @@ class HeightMemory:
         self.origin: np.ndarray | None = None  # world xy of the map's corner (set by the first update)
         self.last_world: np.ndarray | None = None  # the world points of the latest fuse()
         self._top = np.full(self.n * self.n, -np.inf, dtype=np.float32)  # scratch, back to -inf after use
-        # with ``mean``: also each cell's mean of every return it has had this episode (what :mod:`diana_lab.relief`
-        # judges: the highest return is biased up by range noise, and pooling the frames averages it out); None without
+        # with ``mean``: also each cell's mean of every return it has had this episode (what the shield's relief
+        # check judges: the highest return is biased up by range noise, and pooling the frames averages it out);
+        # None without
         self.mean_height: np.ndarray | None = np.full(self.n * self.n, np.nan, dtype=np.float32) if mean else None
         self._sum = np.zeros(self.n * self.n if mean else 0)
         self._count = np.zeros(self.n * self.n if mean else 0, dtype=np.int64)

@@ -73,7 +73,7 @@ def _reference_navigator(folder: Path, preset: str = "reference") -> Any:
         return None
     from dataclasses import asdict
 
-    from diana_lab.slope_shield import ShieldSettings
+    from diana_lab.shield import ShieldSettings
 
     cfg = compose([f"+experiment={preset}"])  # as it ships: behind the preset's slope shield
     eval_cfg = to_object("eval", cfg.eval)
@@ -155,7 +155,7 @@ def policy_latency(ctx: BenchContext) -> list[Figure]:
 
 @measurement(*DETOUR_KEYS)
 def detour_latency(ctx: BenchContext) -> list[Figure]:
-    """One decision of the slope shield's detour (:mod:`diana_lab.detour`: the search over its map and the checks
+    """One decision of the slope shield's detour (:mod:`diana_lab.shield.detour`: the search over its map and the checks
     of the candidates in the search's order), which ``policy_latency`` never meets: its replay stands on one
     spot, and decisions from one spot do not count towards a stall. The shield is the reference preset's, its
     map the world's true ground sampled every 0.1 m over a square of ``DETOUR_SEEN_M`` m around each of the
@@ -165,7 +165,7 @@ def detour_latency(ctx: BenchContext) -> list[Figure]:
 
     from diana_lab.candidates import candidate_offsets, turned
     from diana_lab.config import compose, to_object
-    from diana_lab.slope_shield import ShieldSettings, SlopeShield
+    from diana_lab.shield import ShieldSettings, SlopeShield
 
     cfg = compose(["+experiment=reference"])
     eval_cfg = to_object("eval", cfg.eval)

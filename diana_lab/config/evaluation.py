@@ -60,7 +60,7 @@ class ShieldCameraConfig:
 
 @dataclass
 class ShieldConfig:
-    """The slope shield (:mod:`diana_lab.slope_shield`): before a learnt policy's candidate waypoint is
+    """The slope shield (:mod:`diana_lab.shield.slope_shield`): before a learnt policy's candidate waypoint is
     driven, the rover's own fine height map checks the straight drive to it; among the policy's ``top_k``
     most probable candidates the first it does not see too steep is driven. Only for discrete action spaces."""
 
@@ -112,7 +112,7 @@ class ShieldConfig:
     detour_after: int = 0
     detour_progress: float = 0.5  # m
     detour_margin: float = 10.0  # m
-    # the relief check (diana_lab.relief): also veto a drive crossing a cell whose footprint (robot.radius + 0.1 m)
+    # the relief check (diana_lab.shield.relief): veto a drive crossing a cell whose footprint (robot.radius + 0.1 m)
     # on the map's mean returns is steeper than relief_slope_deg, holds a step (de-tilted, between neighbouring
     # cells) over relief_step or is rougher than relief_roughness (RMS about its plane), judged where at least
     # relief_min_known of the footprint's cells are known; the detour's search takes those cells as walls. The
@@ -130,7 +130,7 @@ class ShieldConfig:
     # the route rule: at every decision (after the final approach and a stalled rover's detour), only the drives
     # the checks allow whose length + cost to go over the shield's map (the detour's search) lies within
     # route_tolerance m of the least are open to the policy, its most probable of them driven: the policy
-    # chooses among the ways to the goal its map shows, not against them (diana_lab.detour); off: false
+    # chooses among the ways to the goal its map shows, not against them (diana_lab.shield.detour); off: false
     route: bool = False
     route_tolerance: float = 1.0  # m
     # the search's cost of slope (the detour's and the route rule's): a cell whose map slope (the steepest, from

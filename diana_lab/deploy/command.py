@@ -117,7 +117,7 @@ def check_overrides(cfg: DictConfig, train_cfg: DictConfig, chosen: set[str], sh
     without a shield to size) are named in one line."""
     from diana_lab.cli import UserError
     from diana_lab.config import to_object
-    from diana_lab.slope_shield import ShieldSettings
+    from diana_lab.shield import ShieldSettings
 
     def exported(group: str, node: Any) -> Any:
         obj = to_object(group, node)
@@ -204,7 +204,7 @@ def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
     }
     shield = None
     if shield_cfg.enabled:  # the runtime drives behind the slope shield too, with the training robot's size
-        from diana_lab.slope_shield import ShieldSettings
+        from diana_lab.shield import ShieldSettings
 
         shield = dataclasses.asdict(ShieldSettings.from_config(shield_cfg, group("robot")))
     spec = export_policy(

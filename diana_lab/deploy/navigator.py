@@ -24,7 +24,7 @@ from diana_lab.candidates import candidate_offsets, turned
 from diana_lab.deploy.encoding import CloudEncoder, make_cloud_encoder
 from diana_lab.deploy.inputs import Pose, check_cloud, check_goal, goal_vector
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
-from diana_lab.slope_shield import ShieldSettings, SlopeShield
+from diana_lab.shield import ShieldSettings, SlopeShield
 
 __all__ = ["Navigator", "session_options"]
 

@@ -162,7 +162,7 @@ class PolicySpec:
     diana_lab_version: str = ""
     opset: int = 17
     format: str = FORMAT
-    # the slope shield the runtime drives behind (diana_lab.slope_shield.ShieldSettings as a dict); None: off
+    # the slope shield the runtime drives behind (diana_lab.shield.slope_shield.ShieldSettings as a dict); None: off
     shield: dict[str, Any] | None = None
 
     def __post_init__(self) -> None:
@@ -178,11 +178,11 @@ class PolicySpec:
                     "shield: the slope shield ranks a discrete policy's candidates by the graph's 'logits' output; "
                     f"this sidecar has action_space.shape={self.action_space.shape} and outputs {sorted(self.outputs)}"
                 )
-            from diana_lab.slope_shield import ShieldSettings
+            from diana_lab.shield import ShieldSettings
 
             try:
                 ShieldSettings.from_dict(self.shield)
-            except TypeError as exc:
+            except (TypeError, ValueError) as exc:  # an unknown key, a bad value
                 raise ValueError(f"shield: {exc}") from exc
 
     def to_json(self) -> str:

@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from diana_lab.slope_shield import VETO_CHECKS
+from diana_lab.shield import VETO_CHECKS
 
 __all__ = ["SUMMARY_KEYS", "mean_ci", "ratio_ci", "spl", "summarize", "to_json", "wilson"]
 

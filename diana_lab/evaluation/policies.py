@@ -115,7 +115,7 @@ class SB3Policy:
 
 
 class ShieldedPolicy:
-    """A discrete learnt policy behind the slope shield (:mod:`diana_lab.slope_shield`): the first of its
+    """A discrete learnt policy behind the slope shield (:mod:`diana_lab.shield.slope_shield`): the first of its
     ``top_k`` most probable candidates whose drive the rover's own fine height map does not call too steep.
 
     The shield's map is fed every sensor frame the env takes (``env.unwrapped.sensor.last_frame``): one per
@@ -151,7 +151,7 @@ class ShieldedPolicy:
         return self.policy.vecnormalize
 
     def reset(self, env: gym.Env) -> None:
-        from diana_lab.slope_shield import ShieldSettings, SlopeShield
+        from diana_lab.shield import ShieldSettings, SlopeShield
 
         self.policy.reset(env)
         if self.shield is None:
@@ -169,7 +169,7 @@ class ShieldedPolicy:
 
     def _counters(self) -> dict[str, int]:
         """The shield's running counters (over the suite) under their column names."""
-        from diana_lab.slope_shield import VETO_CHECKS
+        from diana_lab.shield import VETO_CHECKS
 
         shield = self.shield
         counts = {

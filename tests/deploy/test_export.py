@@ -183,11 +183,11 @@ def test_a_cost_to_go_policy_exports_its_planner_and_picks_what_torch_picks(smal
         run.env.close()
 
 
-def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_whole_settings(discrete_run, depth_run):
+def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_whole_valid_settings(discrete_run, depth_run):
     from dataclasses import asdict
 
     from diana_lab.config.evaluation import ShieldConfig
-    from diana_lab.slope_shield import ShieldSettings
+    from diana_lab.shield import ShieldSettings
 
     settings = asdict(ShieldSettings.from_config(ShieldConfig(enabled=True), to_object("robot", "jackal")))
     node = json.loads(sidecar_path(discrete_run.onnx).read_text())
@@ -197,6 +197,8 @@ def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_
         PolicySpec.from_dict(without_logits)
     with pytest.raises(ValueError, match=r"shield: .*half_track"):
         PolicySpec.from_dict({**node, "shield": {k: v for k, v in settings.items() if k != "half_track"}})
+    with pytest.raises(ValueError, match=r"shield: .*route_tolerance >= 0 m, got -1"):  # a bad value, not just a key
+        PolicySpec.from_dict({**node, "shield": {**settings, "route_tolerance": -1.0}})
     continuous = json.loads(sidecar_path(depth_run.onnx).read_text())
     with pytest.raises(ValueError, match=r"shield: .*action_space.shape=square"):
         PolicySpec.from_dict({**continuous, "shield": settings})

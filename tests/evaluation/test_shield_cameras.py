@@ -11,7 +11,7 @@ from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.config.evaluation import ShieldCameraConfig, ShieldConfig
 from diana_lab.evaluation.shield_cameras import ShieldCameras, turned_attitude
 from diana_lab.rotations import rpy_matrix
-from diana_lab.slope_shield import ShieldSettings, SlopeShield
+from diana_lab.shield import ShieldSettings, SlopeShield
 
 ROBOT = to_object("robot", "jackal")
 RING = [ShieldCameraConfig(yaw_deg=yaw, width=64, height=48) for yaw in (0.0, 90.0, 180.0, -90.0)]

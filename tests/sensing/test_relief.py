@@ -1,4 +1,4 @@
-"""The relief check's estimator (diana_lab.relief) and the mean layer of the height map it reads."""
+"""The relief check's estimator (diana_lab.shield.relief) and the mean layer of the height map it reads."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from diana_lab.height_memory import HeightMemory
-from diana_lab.relief import ReliefLimits, footprint_cells, relief_hazards, relief_judgement
+from diana_lab.shield.relief import ReliefLimits, footprint_cells, relief_hazards, relief_judgement
 
 CELL = 0.2
 LIMITS = ReliefLimits(slope_deg=22.0, step=0.08, roughness=0.065, footprint_radius=0.433, min_known=8)

@@ -11,8 +11,8 @@ import pytest
 
 from diana_lab.config import ConfigError
 from diana_lab.config.evaluation import ShieldConfig
-from diana_lab.detour import SlopeCost
-from diana_lab.slope_shield import ShieldSettings, SlopeShield
+from diana_lab.shield import ShieldSettings, SlopeShield
+from diana_lab.shield.detour import SlopeCost
 from tests.sensing.test_detour import GOAL, NORTH, RING, ROBOT, seen, wall
 from tests.sensing.test_slope_shield import shield
 

@@ -10,8 +10,8 @@ import pytest
 
 from diana_lab.config import ConfigError, to_object
 from diana_lab.config.evaluation import ShieldConfig
-from diana_lab.relief import relief_hazards
-from diana_lab.slope_shield import ShieldSettings, SlopeShield
+from diana_lab.shield import ShieldSettings, SlopeShield
+from diana_lab.shield.relief import relief_hazards
 
 ROBOT = to_object("robot", "jackal")  # wheelbase 0.262 m, track 0.376 m
 

@@ -64,16 +64,16 @@ rule aside. Validation suites, SPL: the yard ``eval.seed=777 / 778 / 779`` 0.800
 
 The detour (``detour_after`` > 0, given the goal): once the rover has gone that many decisions without gaining on
 the goal, the allowed candidate with the least length plus cost to go over this map is driven, after the final
-approach and before the policy's own choice (:mod:`diana_lab.detour`, which says why and how).
+approach and before the policy's own choice (:mod:`diana_lab.shield.detour`, which says why and how).
 
 The route rule (``route``, given the goal): at every decision after those two, only the allowed drives whose
 length plus cost to go over this map lies within ``route_tolerance`` of the least are open to the policy, and its
-most probable of them is driven (:meth:`diana_lab.detour.Detour.route`; ``slope_cost_weight`` makes the search
+most probable of them is driven (:meth:`diana_lab.shield.detour.Detour.route`; ``slope_cost_weight`` makes the search
 charge slopes over ``slope_cost_from_deg``). Such a decision is not counted as a veto: ``routes`` counts those
 that turned from the policy's choice.
 
 Relief (``relief``): a drive is also vetoed where it crosses a cell whose footprint, on the map's mean returns
-(``HeightMemory(mean=True)``), is too steep, stepped or rough (:mod:`diana_lab.relief`, which says why and how);
+(``HeightMemory(mean=True)``), is too steep, stepped or rough (:mod:`diana_lab.shield.relief`, which says why and how);
 the detour's search takes those cells as walls, and the fallback drops the check with the tilt check. With
 ``relief_unseen_from`` it also vetoes a drive that, beyond that distance along it, crosses a cell the check cannot
 judge: with dense returns round the rover, that is ground hidden behind a crest or below a drop, where the
@@ -87,32 +87,25 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from diana_lab.detour import Detour, SlopeCost
 from diana_lab.height_memory import HeightMemory
-from diana_lab.relief import ReliefLimits, relief_judgement
 from diana_lab.rotations import leveling_matrix
-
-if TYPE_CHECKING:  # numpy only at run time: the onboard runtime imports this module without Hydra
-    from diana_lab.config.evaluation import ShieldConfig
-    from diana_lab.config.sim import RobotConfig
+from diana_lab.shield.detour import Detour
+from diana_lab.shield.relief import ReliefLimits, relief_judgement
+from diana_lab.shield.settings import ShieldSettings
 
 __all__ = ["VETO_CHECKS", "ShieldSettings", "SlopeShield"]
 
-# the relief check: a footprint this much wider than the rover's (m; the cost map judges a cell by the ground
-# round it, and a wheel meets a step before the body's circle does), and the points of a drive it is judged at
-RELIEF_MARGIN = 0.1
+# the relief check: the points of a drive it is judged at (as shares of its length)
 RELIEF_SAMPLES = 30
 RELIEF_ALONG = np.linspace(0.05, 1.0, RELIEF_SAMPLES)
 
 # the checks a veto of the policy's own choice is put down to (:attr:`SlopeShield.vetoed_by`), in report order;
 # ``place``: the place rule (allowed, but it ended where the rover had stood: ``revisits``)
 # ``smooth``: a rise over the smooth-ground limit but not over ``obstacle_height``
-# ``relief``: the drive crosses a cell the relief check calls a hazard (``relief``; diana_lab.relief)
+# ``relief``: the drive crosses a cell the relief check calls a hazard (``relief``; diana_lab.shield.relief)
 VETO_CHECKS = ("tilt", "relief", "hazard", "obstacle", "smooth", "peak", "place")
 
 
@@ -125,163 +118,12 @@ def closest_approach(offsets: np.ndarray, points: np.ndarray) -> np.ndarray:
     return np.hypot(gap[..., 0], gap[..., 1])
 
 
-@dataclass
-class ShieldSettings:
-    """What the shield needs, as plain values (``eval.shield`` and the robot's geometry; the sidecar's
-    ``shield`` node onboard)."""
-
-    limit_deg: float
-    top_k: int
-    cell_size: float
-    spacing: float
-    radius: float
-    half_base: float  # half the distance between the outermost axles (m)
-    half_track: float  # half the track width (m)
-    hazard_radius: float = 0.0  # m; 0: hazards felt are not used (sidecars written before the key: off)
-    obstacle_height: float = 0.0  # m above the highest wheel probe within the footprint; 0: off (older sidecars)
-    footprint_radius: float = 0.0  # m: the rover's footprint, what the obstacle check searches
-    min_range: float = 0.0  # m: returns nearer the sensor are not mapped; 0: all (older sidecars)
-    revisit_radius: float = 0.0  # m: prefer drives ending this far from where the rover stood; 0: off (older sidecars)
-    peak_height: float = 0.0  # m a map cell in the footprint may stand over its neighbours; 0: off (older sidecars)
-    approach_radius: float = 0.0  # m: the goal this near, drive straight for it when allowed; 0: off (older sidecars)
-    approach_tolerance: float = 0.3  # m: how near the goal the final approach's drive must pass
-    peak_rank: int = 0  # the peak check's reference: 0 the neighbours' median (older sidecars), k the k-th highest
-    peak_min_known: int = 7  # neighbours that must be known for the peak check to judge a cell (older sidecars: 7)
-    smooth_roughness: float = 0.0  # m: ground this smooth lowers the obstacle limit; 0: off (older sidecars)
-    smooth_obstacle_height: float = 0.0  # m: the obstacle limit on smooth ground
-    smooth_radius: float = 3.0  # m: the ground around the rover that roughness is judged on
-    detour_after: int = 0  # decisions without progress before the detour drives; 0: off (older sidecars)
-    detour_progress: float = 0.5  # m nearer the goal than ever that count as progress
-    detour_margin: float = 10.0  # m around the rover and the goal that the detour's search covers
-    relief: bool = False  # the relief check (diana_lab.relief) on the map's mean layer; off (older sidecars)
-    relief_slope_deg: float = 22.0  # a footprint plane steeper than this is a hazard
-    relief_step: float = 0.08  # m: a de-tilted step between neighbouring footprint cells over this is one
-    relief_roughness: float = 0.065  # m RMS about the footprint plane over this is one
-    relief_min_known: int = 8  # footprint cells that must be known for a cell to be judged
-    relief_unseen_from: float = 0.0  # m along a drive beyond which a cell the check cannot judge vetoes it; 0: off
-    route: bool = False  # the route rule (diana_lab.detour): off (older sidecars)
-    route_tolerance: float = 1.0  # m over the least length + cost to go that a drive open to the policy may cost
-    slope_cost_weight: float = 0.0  # the search's cost of slope (diana_lab.detour.SlopeCost); 0: off (older sidecars)
-    slope_cost_from_deg: float = 15.0
-    slope_cost_to_deg: float = 22.0
-
-    @classmethod
-    def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
-        return cls(
-            float(cfg.limit_deg),
-            int(cfg.top_k),
-            float(cfg.cell_size),
-            float(cfg.spacing),
-            float(cfg.radius),
-            (max(robot.axle_x) - min(robot.axle_x)) / 2.0,
-            float(robot.track_width) / 2.0,
-            float(cfg.hazard_radius),
-            float(cfg.obstacle_height),
-            float(robot.radius),
-            float(cfg.min_range),
-            float(cfg.revisit_radius),
-            float(cfg.peak_height),
-            float(cfg.approach_radius),
-            float(cfg.approach_tolerance),
-            int(cfg.peak_rank),
-            int(cfg.peak_min_known),
-            float(cfg.smooth_roughness),
-            float(cfg.smooth_obstacle_height),
-            float(cfg.smooth_radius),
-            int(cfg.detour_after),
-            float(cfg.detour_progress),
-            float(cfg.detour_margin),
-            bool(cfg.relief),
-            float(cfg.relief_slope_deg),
-            float(cfg.relief_step),
-            float(cfg.relief_roughness),
-            int(cfg.relief_min_known),
-            float(cfg.relief_unseen_from),
-            bool(cfg.route),
-            float(cfg.route_tolerance),
-            float(cfg.slope_cost_weight),
-            float(cfg.slope_cost_from_deg),
-            float(cfg.slope_cost_to_deg),
-        )
-
-    @classmethod
-    def from_dict(cls, node: dict[str, Any]) -> ShieldSettings:
-        return cls(**node)
-
-
 class SlopeShield:
     """See the module docstring. ``observe`` every frame, ``choose`` per decision, ``reset`` per episode
     (a new goal onboard)."""
 
-    def __init__(self, settings: ShieldSettings) -> None:
-        if not (0.0 < settings.limit_deg < 90.0 and settings.top_k >= 1 and settings.spacing > 0):
-            raise ValueError(f"SlopeShield: expected 0 < limit_deg < 90, top_k >= 1, spacing > 0, got {settings}")
-        if not (settings.half_base > 0 and settings.half_track > 0):
-            raise ValueError(f"SlopeShield: expected a positive wheelbase and track, got {settings}")
-        if not settings.min_range >= 0:
-            raise ValueError(f"SlopeShield: expected min_range >= 0, got {settings.min_range}")
-        if not settings.revisit_radius >= 0:
-            raise ValueError(f"SlopeShield: expected revisit_radius >= 0, got {settings.revisit_radius}")
-        if not settings.peak_height >= 0 or (settings.peak_height > 0 and not settings.footprint_radius > 0):
-            raise ValueError(
-                "SlopeShield: expected peak_height >= 0 and, with it, a positive footprint_radius, got "
-                f"{settings.peak_height}, {settings.footprint_radius}"
-            )
-        if not (0 <= settings.peak_rank <= 8 and 1 <= settings.peak_min_known <= 8):
-            raise ValueError(
-                "SlopeShield: expected peak_rank in 0..8 and peak_min_known in 1..8, got "
-                f"{settings.peak_rank}, {settings.peak_min_known}"
-            )
-        if not (settings.approach_radius >= 0 and settings.approach_tolerance > 0):
-            raise ValueError(
-                "SlopeShield: expected approach_radius >= 0 and approach_tolerance > 0, got "
-                f"{settings.approach_radius}, {settings.approach_tolerance}"
-            )
-        if not settings.hazard_radius >= 0:
-            raise ValueError(f"SlopeShield: expected hazard_radius >= 0, got {settings.hazard_radius}")
-        if not (settings.obstacle_height >= 0 and (settings.obstacle_height == 0 or settings.footprint_radius > 0)):
-            raise ValueError(
-                "SlopeShield: expected obstacle_height >= 0 and, with it, a positive footprint_radius, got "
-                f"{settings.obstacle_height}, {settings.footprint_radius}"
-            )
-        if not (
-            settings.smooth_roughness >= 0
-            and settings.smooth_radius > 0
-            and (settings.smooth_roughness == 0 or 0 < settings.smooth_obstacle_height < settings.obstacle_height)
-        ):
-            raise ValueError(
-                "SlopeShield: expected smooth_roughness >= 0, a positive smooth_radius and, with smooth_roughness, "
-                "0 < smooth_obstacle_height < obstacle_height, got "
-                f"{settings.smooth_roughness}, {settings.smooth_radius}, {settings.smooth_obstacle_height}, "
-                f"{settings.obstacle_height}"
-            )
-        if not (settings.detour_after >= 0 and settings.detour_progress > 0 and settings.detour_margin > 0):
-            raise ValueError(
-                "SlopeShield: expected detour_after >= 0, a positive detour_progress and detour_margin, got "
-                f"{settings.detour_after}, {settings.detour_progress}, {settings.detour_margin}"
-            )
-        self.relief: ReliefLimits | None = None
-        if settings.relief:
-            try:
-                self.relief = ReliefLimits(
-                    settings.relief_slope_deg,
-                    settings.relief_step,
-                    settings.relief_roughness,
-                    settings.footprint_radius + RELIEF_MARGIN,
-                    settings.relief_min_known,
-                )
-            except ValueError as exc:
-                raise ValueError(f"SlopeShield: the relief check's settings: {exc}") from exc
-        if not settings.relief_unseen_from >= 0:
-            raise ValueError(
-                f"SlopeShield: expected relief_unseen_from >= 0 m (0: off), got {settings.relief_unseen_from}"
-            )
-        if not settings.route_tolerance >= 0:
-            raise ValueError(f"SlopeShield: expected route_tolerance >= 0 m, got {settings.route_tolerance}")
-        try:
-            slope_cost = SlopeCost(settings.slope_cost_weight, settings.slope_cost_from_deg, settings.slope_cost_to_deg)
-        except ValueError as exc:
-            raise ValueError(f"SlopeShield: the search's slope cost: {exc}") from exc
+    def __init__(self, settings: ShieldSettings) -> None:  # settings checked when built (ShieldSettings)
+        self.relief: ReliefLimits | None = settings.relief_limits()
         # the detour's search, which the route rule uses too (its stall count only with detour_after > 0)
         self.detour = (
             Detour(
@@ -292,7 +134,7 @@ class SlopeShield:
                 settings.hazard_radius,
                 pool=max(1, round(2.0 * settings.half_track / settings.cell_size)),  # the track width in cells
                 relief=self.relief,
-                slope_cost=slope_cost,
+                slope_cost=settings.slope_cost(),
             )
             if settings.detour_after > 0 or settings.route
             else None
@@ -316,8 +158,8 @@ class SlopeShield:
         self.revisits = 0  # of which the place rule alone turned from the first allowed candidate
         self.fallbacks = 0  # decisions that found no candidate allowed (the tilt check dropped, see _fallback)
         self.approaches = 0  # decisions the final approach made (the goal within approach_radius, its drive allowed)
-        self.detours = 0  # decisions the detour made (no progress for detour_after decisions; diana_lab.detour)
-        self.routes = 0  # decisions the route rule turned from the policy's choice (``route``; diana_lab.detour)
+        self.detours = 0  # decisions the detour made (no progress for detour_after decisions; diana_lab.shield.detour)
+        self.routes = 0  # decisions the route rule turned from the policy's choice (``route``; diana_lab.shield.detour)
         # of the vetoes, how many each check made: every check the policy's own choice failed counts (one veto
         # can fail several, so the counts can sum past ``vetoes``); a choice that failed none was driven
         self.vetoed_by = dict.fromkeys(VETO_CHECKS, 0)
@@ -356,7 +198,7 @@ class SlopeShield:
 
     def relief_crosses(self, start_xy: np.ndarray, offsets: np.ndarray) -> np.ndarray:
         """Whether each straight drive in ``offsets`` ``(K, 2)`` from ``start_xy`` crosses a cell the relief check
-        calls a hazard (:mod:`diana_lab.relief`, on the map's mean layer), or, with ``relief_unseen_from`` > 0, a
+        calls a hazard (:mod:`diana_lab.shield.relief`, on the map's mean layer), or, with ``relief_unseen_from`` > 0, a
         cell it cannot judge (unseen ground, or too little of its footprint seen) more than that far along it,
         ``(K,)`` bool; all False with the check off. Judged at :data:`RELIEF_SAMPLES` points from 5 % of the way
         to its end (the rover's own cell is where it stands: a hazard there would veto every drive), on one grid
@@ -620,7 +462,7 @@ class SlopeShield:
         whose drive ``offsets[k]`` (world frame, ``(n, 2)``) is allowed and, with ``revisit_radius``, ends away
         from the places stood on (else the first allowed); if none is allowed, :meth:`_fallback`'s. With
         ``approach_radius`` and the goal (world ``goal_xy``) that near, :meth:`approach`'s drive comes first; with
-        ``detour_after`` and the goal, once the rover has stopped gaining on it, :class:`~diana_lab.detour.Detour`'s
+        ``detour_after`` and the goal, once the rover has stopped gaining on it, :class:`.Detour`'s
         drive comes next; then, with ``route`` and the goal, the route rule's (:meth:`Detour.route`), when its
         search finds a way."""
         if len(ranked) == 0:

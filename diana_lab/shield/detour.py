@@ -26,7 +26,7 @@ so a gap in a wall narrower than the rover is no way through (single map cells: 
 either. Every other search cell costs its length, seen or not, and those within :data:`GOAL_CLEARANCE` of the
 goal's (per axis) are drivable: the goal is where the rover has to go, even on a steep spot. With the shield's
 relief check on (``relief``), the cells it calls relief hazards are walls too.
-:func:`diana_lab.grid_search.cost_to_go` searches it (numba; onboard too).
+:func:`diana_lab.shield.grid_search.cost_to_go` searches it (numba; onboard too).
 
 Validation suites (100 episodes each), v0.12 -> ``after`` 4, ``progress`` 0.5 m, ``margin`` 10 m: see
 docs/reference_policy.md, "Detour".
@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from diana_lab.height_memory import HeightMemory
-from diana_lab.relief import ReliefLimits, relief_hazards
+from diana_lab.shield.relief import ReliefLimits, relief_hazards
 
 __all__ = ["GOAL_CLEARANCE", "Detour", "SlopeCost"]
 
@@ -84,9 +84,9 @@ class SlopeCost:
 
 
 def _cost_to_go() -> Any:
-    """:func:`diana_lab.grid_search.cost_to_go`, imported when first needed (it needs numba)."""
+    """:func:`diana_lab.shield.grid_search.cost_to_go`, imported when first needed (it needs numba)."""
     try:
-        from diana_lab.grid_search import cost_to_go
+        from diana_lab.shield.grid_search import cost_to_go
     except ImportError as exc:  # the onboard runtime without numba
         raise ValueError(
             "the slope shield's detour (detour_after > 0) needs numba (pip install numba): " + str(exc)
@@ -106,7 +106,7 @@ class Detour:
         pool: a search cell is ``pool`` x ``pool`` map cells, drivable when all of them are (the shield passes the
             track width in cells: a gap in a wall narrower than the rover is no way through).
         relief: with the shield's relief check on, its limits: the map cells it calls hazards (on the map's mean
-            layer, :mod:`diana_lab.relief`) are not drivable either.
+            layer, :mod:`diana_lab.shield.relief`) are not drivable either.
         slope_cost: the search's cost of slope (:class:`SlopeCost`); None: every drivable cell costs its length.
     """
 

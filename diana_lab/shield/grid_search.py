@@ -6,7 +6,7 @@ cannot reuse one search per episode. With ``scipy.sparse.csgraph.dijkstra`` a st
 graph of the whole map (~19 ms on the 257 x 257 Mars yard) and searched all of it (~20 ms), and labelling
 was nearly all of a DAgger iteration's time. This search walks the grid itself (no graph), from the goal
 towards the rover with an A* bound, and stops when the start and every candidate waypoint are settled.
-The slope shield's detour (:mod:`diana_lab.detour`) searches its own map with it, onboard too: this module
+The slope shield's detour (:mod:`diana_lab.shield.detour`) searches its own map with it, onboard too: this module
 needs numpy and numba only (it sits outside :mod:`diana_lab.planning`, whose cost maps need the simulator's
 worlds).
 
