@@ -5,12 +5,12 @@ frames), 62 % of the rays hit within 1.5 m and 75 % within 3 m, and ray marching
 of the frame (each walks from the sensor to its hit, with a hard-to-predict branch at every cell). Turned around,
 the same tests cost less: every terrain cell near the sensor is projected into the image once, and only the pixels
 inside its projection test it, with the ray marcher's own arithmetic. The rays that hit nothing there are then
-marched from where they leave that region, as before (:func:`diana_lab.sensing.heightfield_cast.cast_terrain`).
+marched from where they leave that region, as before (:func:`diana_lab.sensing.heightfield_kernels.cast_terrain`).
 
 Exact, not approximate: the result is bit for bit the ray marcher's (tested on random poses, worlds with rocks,
 maps' edges), because
 
-* a cell is tested on a ray with the marcher's test (:func:`~diana_lab.sensing.heightfield_cast._crossing`, the
+* a cell is tested on a ray with the marcher's test (:func:`~diana_lab.sensing.heightfield_kernels._crossing`, the
   same plane coefficients and the ray's interval over the cell from the same edge crossings), so a hit has the
   same value, and the nearest of a ray's hits is kept;
 * the region is a box of cells that holds the sensor: a convex set, so a ray's segment up to a hit inside it lies
@@ -39,7 +39,7 @@ import math
 
 import numpy as np
 
-from diana_lab.sensing.heightfield_cast import _crossing, _guess, _jit, _pose32, _rotate32, _u
+from diana_lab.sensing.heightfield_kernels import _crossing, _guess, _jit, _pose32, _rotate32, _u
 
 __all__ = ["DELTA", "MARGIN", "REACH_CELLS", "REACH_M", "raster_near"]
 
@@ -55,7 +55,7 @@ def raster_near(directions, origin, rotation, cam, proj, reach, xs, ys, hs, cell
 
     ``directions (N, 3)`` float32 rover-frame rays of a :class:`~diana_lab.sensing.pinhole.Pinhole` (``proj``
     its ``params``, ``cam`` its ``mount_rotation``), posed by ``rotation``/``origin`` exactly as
-    :func:`~diana_lab.sensing.heightfield_cast.cast_terrain` poses them. Returns
+    :func:`~diana_lab.sensing.heightfield_kernels.cast_terrain` poses them. Returns
     ``best (N,)`` float64, the hit distance (``inf``: none in the box) and ``box (4,)`` int64, the cell index
     ranges ``ix_lo, ix_hi, iy_lo, iy_hi`` rasterised (empty, ``ix_lo > ix_hi``, when the raster was skipped:
     sensor off the map or as low as the terrain around it).

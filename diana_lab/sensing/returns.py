@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from diana_lab.sensing.heightfield_cast import _jit
+from diana_lab.sensing.heightfield_kernels import _jit
 
 __all__ = ["valid_points"]
 

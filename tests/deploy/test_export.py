@@ -183,7 +183,7 @@ def test_a_cost_to_go_policy_exports_its_planner_and_picks_what_torch_picks(smal
         run.env.close()
 
 
-def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_whole_valid_settings(discrete_run, depth_run):
+def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_valid_settings(discrete_run, depth_run):
     from dataclasses import asdict
 
     from diana_lab.config.evaluation import ShieldConfig

@@ -15,7 +15,7 @@ from diana_lab.config import ConfigError, to_object
 from diana_lab.config.evaluation import ShieldConfig
 from diana_lab.shield import ShieldSettings, SlopeShield
 from diana_lab.shield.detour import Detour
-from tests.sensing.test_slope_shield import ground, shield
+from tests.shield.test_slope_shield import ground, shield
 
 ROBOT = to_object("robot", "jackal")
 RING = candidate_offsets(32, (1.0, 2.0, 3.0))  # the reference policy's 96 candidates, world frame at yaw 0

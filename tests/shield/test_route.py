@@ -13,8 +13,8 @@ from diana_lab.config import ConfigError
 from diana_lab.config.evaluation import ShieldConfig
 from diana_lab.shield import ShieldSettings, SlopeShield
 from diana_lab.shield.detour import SlopeCost
-from tests.sensing.test_detour import GOAL, NORTH, RING, ROBOT, seen, wall
-from tests.sensing.test_slope_shield import shield
+from tests.shield.test_detour import GOAL, NORTH, RING, ROBOT, seen, wall
+from tests.shield.test_slope_shield import shield
 
 ROUTE = {"route": True, "route_tolerance": 1.0, "top_k": 96, "hazard_radius": 0.5}
 
