@@ -102,7 +102,7 @@ def _check_spaces(loaded: Any, env: Any, cfg: DictConfig, overrides: Sequence[st
     """Refuse a model trained on other observations or actions than ``env``'s, naming the config keys that
     differ from its training's (and the preset of the shipped policy, when left out), and ending with the
     training's overrides that ``overrides``, this command line's, lacks (or, not recorded, to repeat them)."""
-    from diana_lab.evaluation.loading import (
+    from diana_lab.evaluation.compatibility import (
         check_action_space,
         check_observation_space,
         config_differences,

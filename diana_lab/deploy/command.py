@@ -26,7 +26,7 @@ from diana_lab.deploy.export import (
     sensor_spec,
 )
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
-from diana_lab.evaluation.loading import flat_keys
+from diana_lab.evaluation.compatibility import flat_keys
 
 __all__ = ["PRETRAINED_PRESET", "TRAINED_GROUPS", "check_overrides", "chosen_keys", "export_shield", "run"]
 

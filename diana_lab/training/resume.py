@@ -163,7 +163,7 @@ def check_resumable(
     from stable_baselines3.common.save_util import load_from_zip_file
 
     from diana_lab.config import GROUPS
-    from diana_lab.evaluation.loading import config_differences, recorded_overrides, rerun_advice
+    from diana_lab.evaluation.compatibility import config_differences, recorded_overrides, rerun_advice
 
     train_cfg = OmegaConf.load(resume.config) if resume.config is not None else None
     diffs = config_differences(train_cfg, cfg, GROUPS)

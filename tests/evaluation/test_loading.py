@@ -3,66 +3,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from gymnasium import spaces
 
 from diana_lab.cli import UserError
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.evaluation import run_suite
-from diana_lab.evaluation.loading import (
-    POLICY_NAMES,
-    check_action_space,
-    check_observation_space,
-    config_differences,
-    load_policy,
-    recorded_overrides,
-    rerun_advice,
-)
+from diana_lab.evaluation.compatibility import check_observation_space
+from diana_lab.evaluation.loading import POLICY_NAMES, load_policy
 from diana_lab.evaluation.suite import EpisodeSpec
-
-
-def goal_space():
-    return spaces.Box(-1, 1, (7,), np.float32)
-
-
-def test_observation_mismatch_names_the_key_and_shapes():
-    trained = spaces.Dict({"goal": goal_space(), "depth_image": spaces.Box(0, 1, (1, 48, 64), np.float32)})
-    other = spaces.Dict({"goal": goal_space(), "depth_image": spaces.Box(0, 1, (1, 112, 112), np.float32)})
-    with pytest.raises(ConfigError, match=r"'depth_image' is \(1, 48, 64\) float32 for the policy but \(1, 112, 112\)"):
-        check_observation_space(trained, other, "model.zip")
-    lidar = spaces.Dict({"goal": goal_space(), "elevation_map": spaces.Box(-1, 1, (2, 40, 40), np.float32)})
-    with pytest.raises(ConfigError, match=r"expects observation key 'depth_image'.*'elevation_map'"):
-        check_observation_space(trained, lidar, "model.zip")
-    # bounds may differ (the goal distance bound follows the world size): not a mismatch
-    wider = spaces.Dict(
-        {
-            "goal": spaces.Box(-2, 2, (7,), np.float32),
-            "depth_image": spaces.Box(0, 1, (1, 48, 64), np.float32),
-        }
-    )
-    check_observation_space(trained, wider, "model.zip")
-
-
-@pytest.mark.parametrize(
-    ("model_space", "env_space", "expected"),
-    [
-        (spaces.Discrete(48), spaces.Discrete(192), "48 candidate waypoints.*192 candidate waypoints"),
-        (spaces.Discrete(96), spaces.Box(-1, 1, (2,)), r"96 candidate waypoints.*continuous \(2,\)"),
-        (spaces.Box(-1, 1, (2,)), spaces.Discrete(96), r"continuous \(2,\).*96 candidate"),
-    ],
-)
-def test_action_mismatch_names_both_spaces_and_the_differing_keys(model_space, env_space, expected):
-    with pytest.raises(ConfigError, match=expected) as info:
-        check_action_space(model_space, env_space, "m.zip", ["action_space.headings: training 16, here 64"])
-    assert "action_space.headings: training 16, here 64" in str(info.value)
-    check_action_space(model_space, model_space, "m.zip")  # the same space passes
-    check_action_space(spaces.Box(-1, 1, (2,)), spaces.Box(-2, 2, (2,)), "m.zip")  # bounds may differ
-
-
-def test_config_differences_name_the_keys():
-    a = compose(["sensor=depth_camera"])
-    b = compose(["sensor=depth_camera_paper"])
-    diffs = config_differences(a, b, groups=("sensor",))
-    assert any(d.startswith("sensor.width: training 64, here 112") for d in diffs)
 
 
 def test_a_saved_sb3_model_loads_runs_and_is_refused_on_other_observations(tmp_path, flat_env):
@@ -146,28 +93,6 @@ def test_a_run_id_in_a_store_that_does_not_exist_is_refused_without_creating_it(
     with pytest.raises(UserError, match=r"policy=0123456789abcdef0123456789abcdef: .*tracking\.uri=.*has no store"):
         load_policy("0123456789abcdef0123456789abcdef", cfg, to_object("eval", cfg.eval))
     assert not db.exists()
-
-
-def test_rerun_advice_names_the_trainings_env_overrides_the_command_line_lacks(tmp_path):
-    """A run id or model path evaluated without the training's overrides (``+experiment=quick``) used to be
-    refused naming only the config keys that differ; the message now ends with what to add."""
-    trained = ["+experiment=quick", "sensor.width=16", "train.total_timesteps=256", "seed=3", "'algo.net_arch=[8]'"]
-    advice = rerun_advice(trained, ["policy=abc", "eval.episodes=2"])
-    assert advice == "Re-run with the training's overrides: +experiment=quick sensor.width=16"  # env keys only
-    assert rerun_advice(trained, ["+experiment=quick"]).endswith("overrides: sensor.width=16")
-    assert rerun_advice(["world.obstacles=[a.obj,b.obj]"]).endswith("'world.obstacles=[a.obj,b.obj]'")  # pastable
-    # every one given already: the mismatch is the command line's own
-    assert "drop the other overrides" in rerun_advice(["sensor.width=16"], ["sensor.width=16", "sensor.width=32"])
-    assert "default env" in rerun_advice(["train.total_timesteps=256"], ["sensor.width=32"])
-    assert "not recorded" in rerun_advice(None)
-
-    hydra = tmp_path / ".hydra"
-    hydra.mkdir()
-    (hydra / "config.yaml").write_text("seed: 0\n")
-    assert recorded_overrides(hydra / "config.yaml") is None  # Hydra's overrides.yaml not kept
-    (hydra / "overrides.yaml").write_text("- +experiment=quick\n- sensor.width=16\n")
-    assert recorded_overrides(hydra / "config.yaml") == ["+experiment=quick", "sensor.width=16"]
-    assert recorded_overrides(None) is None
 
 
 def test_the_readmes_list_of_policies_is_the_one_the_program_accepts_and_names():

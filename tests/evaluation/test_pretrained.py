@@ -17,7 +17,8 @@ from omegaconf import OmegaConf
 from diana_lab.config import compose, to_object
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.evaluate import env_config
-from diana_lab.evaluation.loading import PRETRAINED_DIR, check_observation_space, load_policy
+from diana_lab.evaluation.compatibility import check_observation_space
+from diana_lab.evaluation.loading import PRETRAINED_DIR, load_policy
 from diana_lab.shield import VETO_CHECKS
 
 from .test_cli import evaluate_cli

@@ -1,0 +1,177 @@
+"""Whether a saved policy fits the env it is about to drive, and what to tell the user when it does not.
+
+A model whose observation space differs from the env's (another sensor, encoding or resolution) is refused
+with a message naming the key and both shapes, and -- when the training config is known -- the config keys
+that differ, since running it would only produce a shape error deep inside torch; a model over another action
+space is refused the same way, since a categorical policy over 16 headings in an env of 64 would run without a
+word. The message ends with what to do (:func:`rerun_advice`): the training's own env overrides, when its
+``.hydra/overrides.yaml`` was kept (beside its ``config.yaml``, among a run's artefacts), else to repeat the
+overrides it was trained with. Evaluation, ``train.resume`` and the exporter share these checks.
+"""
+
+from __future__ import annotations
+
+import shlex
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from gymnasium import spaces
+from omegaconf import DictConfig, ListConfig, OmegaConf
+
+from diana_lab.config import GROUPS, ConfigError
+
+__all__ = [
+    "check_action_space",
+    "check_observation_space",
+    "config_differences",
+    "flat_keys",
+    "recorded_overrides",
+    "rerun_advice",
+]
+
+
+def recorded_overrides(config: Path | None) -> list[str] | None:
+    """The command-line overrides of the training whose ``.hydra/config.yaml`` is ``config``: Hydra's
+    ``overrides.yaml`` beside it; ``None`` when it is not there (a model copied without it, the shipped policy)."""
+    path = config.with_name("overrides.yaml") if config is not None else None
+    if path is None or not path.is_file():
+        return None
+    try:
+        loaded = OmegaConf.load(path)
+    except Exception:  # unreadable: as good as not recorded
+        return None
+    return [str(o) for o in loaded] if isinstance(loaded, ListConfig) else None
+
+
+# what an override sets the env with: a group of the env, or the preset that sets them (+experiment=quick)
+_ENV_ROOTS = (*GROUPS, "experiment")
+
+
+def _env_override(override: str) -> bool:
+    key = override.lstrip("+~").split("=", 1)[0]
+    return key.split(".", 1)[0].split("@", 1)[0] in _ENV_ROOTS
+
+
+def rerun_advice(train_overrides: Sequence[str] | None, given: Sequence[str] = ()) -> str:
+    """The end of a refusal of a model trained in another env than this command's: the training's overrides
+    of the env (its groups and ``+experiment``) that ``given``, this command line's, lacks, ready to paste."""
+    if train_overrides is None:
+        return "Re-run with the overrides it was trained with (they are not recorded with the model)."
+    env = [o for o in train_overrides if _env_override(o)]
+    missing = [o for o in env if o not in set(given)]
+    if missing:
+        return f"Re-run with the training's overrides: {' '.join(shlex.quote(o) for o in missing)}"
+    if not env:
+        return "It was trained with the default env (no env overrides): drop the overrides that change these keys."
+    return (
+        f"It was trained with {' '.join(shlex.quote(o) for o in env)}: drop the other overrides that change these keys."
+    )
+
+
+def _shapes(space: spaces.Space) -> dict[str, tuple[tuple[int, ...], str]]:
+    if isinstance(space, spaces.Dict):
+        return {k: (tuple(s.shape or ()), str(s.dtype)) for k, s in space.spaces.items()}
+    return {"<observation>": (tuple(space.shape or ()), str(space.dtype))}
+
+
+def flat_keys(node: Any, prefix: str = "") -> dict[str, Any]:
+    """``{"a.b.c": value}`` of a config (a ``DictConfig``, resolved, or plain dicts; lists are values); ``{}`` for
+    None."""
+    if isinstance(node, DictConfig | ListConfig):
+        node = OmegaConf.to_container(node, resolve=True)
+    if node is None:
+        return {}
+    if not isinstance(node, dict):
+        return {prefix: node}
+    out: dict[str, Any] = {}
+    for k, v in node.items():
+        out.update(flat_keys(v, f"{prefix}.{k}" if prefix else str(k)))
+    return out
+
+
+def config_differences(
+    train_cfg: DictConfig | None,
+    eval_cfg: DictConfig | None,
+    groups: tuple[str, ...] = ("sensor", "world", "episode"),
+) -> list[str]:
+    """``group.key: training X, here Y`` for the config keys that shape observations (when both are known)."""
+    if train_cfg is None or eval_cfg is None:
+        return []
+    diffs = []
+    for g in groups:
+        a = flat_keys(train_cfg.get(g))
+        b = flat_keys(eval_cfg.get(g))
+        for k in sorted(set(a) | set(b)):
+            if a.get(k) != b.get(k):
+                diffs.append(f"{g}.{k}: training {a.get(k)!r}, here {b.get(k)!r}")
+    return diffs
+
+
+def check_observation_space(
+    model_space: spaces.Space,
+    env_space: spaces.Space,
+    label: str,
+    hints: list[str] | None = None,
+    advice: str | None = None,
+) -> None:
+    """Refuse a policy trained on other observations (keys, shapes, dtypes); bounds may differ (goal distance
+    bounds follow the world size, and the policy only ever sees the clipped values). ``advice`` ends the message
+    (:func:`rerun_advice`)."""
+    want, have = _shapes(model_space), _shapes(env_space)
+    problems = []
+    for k in sorted(set(want) | set(have)):
+        if k not in have:
+            problems.append(f"the policy expects observation key '{k}' {want[k][0]}, which this env does not give")
+        elif k not in want:
+            problems.append(f"this env gives observation key '{k}' {have[k][0]}, which the policy was not trained on")
+        elif want[k] != have[k]:
+            problems.append(
+                f"observation '{k}' is {want[k][0]} {want[k][1]} for the policy but {have[k][0]} {have[k][1]} here"
+            )
+    if problems:
+        hint = (
+            f" Differing config keys: {'; '.join(hints[:8])}."
+            if hints
+            else (
+                " Evaluate with the sensor settings the policy was trained with (sensor=..., "
+                "sensor.encoding=..., sensor.width/height)."
+            )
+        )
+        raise ConfigError(
+            f"policy {label}: trained with other observation settings than this evaluation: "
+            f"{'; '.join(problems)}.{hint}" + (f" {advice}" if advice else "")
+        )
+
+
+def check_action_space(
+    model_space: spaces.Space,
+    env_space: spaces.Space,
+    label: str,
+    hints: list[str] | None = None,
+    advice: str | None = None,
+) -> None:
+    """Refuse a policy trained on another action space. A categorical policy over 16 headings in an env of 64
+    would run without a word, its indices meaning other waypoints; over 64 in an env of 16, fail mid-episode.
+    ``advice`` ends the message (:func:`rerun_advice`)."""
+
+    def describe(space: spaces.Space) -> str:
+        if isinstance(space, spaces.Discrete):
+            return f"{space.n} candidate waypoints (discrete)"
+        return f"a continuous {tuple(space.shape or ())} waypoint"
+
+    same = type(model_space) is type(env_space) and (
+        model_space.n == env_space.n
+        if isinstance(model_space, spaces.Discrete)
+        else tuple(model_space.shape or ()) == tuple(env_space.shape or ())
+    )
+    if not same:
+        hint = (
+            f" Differing config keys: {'; '.join(hints[:8])}."
+            if hints
+            else " Evaluate with the action_space the policy was trained with (action_space=..., headings, distances)."
+        )
+        raise ConfigError(
+            f"policy {label}: trained on {describe(model_space)}, but this evaluation's action_space gives "
+            f"{describe(env_space)}.{hint}" + (f" {advice}" if advice else "")
+        )
