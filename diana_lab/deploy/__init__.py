@@ -7,7 +7,8 @@
 ``pose`` is the pose estimate ``(x, y, z, roll, pitch, yaw)`` (or a :class:`Pose`), ``goal_xy`` the goal in
 the world frame and ``cloud`` the raw ``(N, 3)`` points in the sensor's body frame (x forward, y left,
 z up). The graph and its ``policy.json`` sidecar come from ``python -m diana_lab.export`` (whose torch-side
-code is :mod:`diana_lab.deploy.export`, never imported from here). open3d is imported only by the
+code is :mod:`diana_lab.deploy.export` and whose config-side code is :mod:`diana_lab.deploy.sidecar`, neither
+imported from here). open3d is imported only by the
 ``elevation_map`` and ``points`` encodings. See ``docs/deploy.md``.
 """
 

@@ -17,14 +17,8 @@ from omegaconf import DictConfig, OmegaConf
 
 from diana_lab.config import ConfigError
 from diana_lab.config.validation import positive_int
-from diana_lab.deploy.export import (
-    action_spec,
-    check_opset,
-    check_output,
-    encoding_spec,
-    export_policy,
-    sensor_spec,
-)
+from diana_lab.deploy.export import check_opset, check_output, export_policy
+from diana_lab.deploy.sidecar import action_spec, encoding_spec, sensor_spec
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
 from diana_lab.evaluation.compatibility import flat_keys
 
