@@ -1,7 +1,7 @@
 """Build or load an SB3 model from the typed ``algo`` config with ``hydra.utils.instantiate``.
 
 The ``algo`` node names the class (``_target_: stable_baselines3.PPO``) and holds its hyperparameters; the
-keys in :data:`~diana_lab.config.run.NON_SB3_KEYS` are ours (network sizes, VecNormalize, the extractor)
+keys in :data:`~diana_lab.config.algo.NON_SB3_KEYS` are ours (network sizes, VecNormalize, the extractor)
 and become ``policy_kwargs`` and the like here. Instantiating a ``_partial_`` first and then adding the
 run-time objects (env, seed, action noise) keeps the YAML pure data.
 """
@@ -21,7 +21,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from diana_lab.agents.cost_to_go import init_policy_head
 from diana_lab.agents.extractors import RoverExtractor
-from diana_lab.config.run import NON_SB3_KEYS, AlgoConfig, check_action_space
+from diana_lab.config.algo import NON_SB3_KEYS, AlgoConfig, check_action_space
 from diana_lab.config.validation import ConfigError
 
 __all__ = ["algo_class", "build_model", "load_model", "policy_kwargs"]

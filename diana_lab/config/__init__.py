@@ -15,12 +15,13 @@ from typing import Any
 from hydra.utils import get_object
 from omegaconf import DictConfig, OmegaConf
 
+from diana_lab.config import algo as _algo_schemas  # noqa: F401  (registers the algo schemas)
 from diana_lab.config import env as _env_schemas  # noqa: F401  (registers its schemas)
 from diana_lab.config import evaluation as _eval_schema  # noqa: F401  (registers the eval schema)
-from diana_lab.config import run as _run_schemas  # noqa: F401  (registers algo, train, tracking)
+from diana_lab.config import run as _run_schemas  # noqa: F401  (registers train, tracking)
 from diana_lab.config import sensing as _sensor_schemas  # noqa: F401  (registers the sensor schemas)
 from diana_lab.config import sweep as _sweep_schema  # noqa: F401  (registers the sweep schema)
-from diana_lab.config.run import check_action_space
+from diana_lab.config.algo import check_action_space
 from diana_lab.config.store import SCHEMAS, register, store_schemas
 from diana_lab.config.validation import ConfigError
 

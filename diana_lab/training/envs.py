@@ -20,8 +20,9 @@ from stable_baselines3.common.monitor import Monitor
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecNormalize
 
 from diana_lab import config as C
+from diana_lab.config.algo import AlgoConfig
 from diana_lab.config.evaluation import EvalConfig
-from diana_lab.config.run import AlgoConfig, ImitationConfig, TrainConfig
+from diana_lab.config.run import ImitationConfig, TrainConfig
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.world import World
 

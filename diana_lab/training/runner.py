@@ -33,8 +33,9 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 from diana_lab import config as C
 from diana_lab.agents.factory import build_model, load_model
 from diana_lab.cli import UserError
+from diana_lab.config.algo import AlgoConfig
 from diana_lab.config.evaluation import EvalConfig
-from diana_lab.config.run import AlgoConfig, TrackingConfig, TrainConfig
+from diana_lab.config.run import TrackingConfig, TrainConfig
 from diana_lab.config.validation import check_seed
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
 from diana_lab.tracking.atomic import uninterrupted
