@@ -128,7 +128,8 @@ def _table(summaries: dict[str, dict[str, Any]], index: str) -> str:
     from diana_lab.evaluation.core import summary_table
 
     table = summary_table(summaries, index)
-    return table.to_string(formatters={"episodes": lambda v: f"{int(v)}"}, float_format=lambda v: f"{v:.3f}")
+    counts = {k: (lambda v: f"{int(v)}") for k in ("episodes", "slow_successes")}
+    return table.to_string(formatters=counts, float_format=lambda v: f"{v:.3f}")
 
 
 def run(

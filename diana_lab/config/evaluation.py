@@ -213,6 +213,9 @@ class EvalConfig:
     seed: int = 12345  # the suite's own seed (starts, goals, headings and per-episode noise seeds)
     min_distance: float = 8.0  # start-goal straight-line distance range (m)
     max_distance: float = 30.0
+    # m/s: a successful episode slower than this (goal-directed: straight-line distance over time) counts in the
+    # summary's slow_successes; the paper's minimum, a quarter of its rover's 0.33 m/s cruise
+    min_goal_speed: float = 0.083
     every: int = 10000  # training steps between periodic evaluations (the runner); 0 disables them
     deterministic: bool = True  # RL policies act with their mean/mode action
     dynamics: str | None = None  # None: the same dynamics as training; else "kinematic" or "physics"
@@ -226,6 +229,7 @@ class EvalConfig:
         non_negative_int("eval.every", self.every, "0 disables")
         non_negative("eval.min_distance", self.min_distance)
         ordered("eval.min_distance", self.min_distance, "eval.max_distance", self.max_distance)
+        non_negative("eval.min_goal_speed", self.min_goal_speed)
         if self.dynamics is not None:
             one_of("eval.dynamics", self.dynamics, DYNAMICS_OPTIONS)
         for i, level in enumerate(self.sensor_noise):

@@ -34,6 +34,7 @@ TABLE_KEYS = (
     "timeout_rate",
     "mean_path_length_m",
     "mean_speed_mps",
+    "slow_successes",
     "mean_max_tilt_deg",
     "time_over_15deg_frac",
 )
@@ -87,7 +88,7 @@ def evaluate(policy: Policy, env: gym.Env, cfg: EvalConfig | Any, out_dir: Path 
     try:
         suite = make_suite(run_env, cfg.episodes, cfg.seed, cfg.min_distance, cfg.max_distance)
         df, traces = run_episodes(policy, run_env, suite, out / "episode_0.gif" if cfg.video else None)
-        summary = summarize(df)
+        summary = summarize(df, cfg.min_goal_speed)
         df.to_csv(out / "episodes.csv", index=False)
         (out / "summary.json").write_text(to_json(summary))
         if cfg.plots:

@@ -93,7 +93,7 @@ class PeriodicEvaluation(BaseCallback):
 
         env = self.env()
         policy = sb3_policy(self.model, self.model.get_vec_normalize_env(), self.cfg)
-        summary = summarize(run_suite(policy, env, self._suite))
+        summary = summarize(run_suite(policy, env, self._suite), self.cfg.min_goal_speed)
         step = self.model.num_timesteps
         self.last_step, self.last_summary = step, summary
         self.tracker.log_metrics(eval_metrics(summary), step)

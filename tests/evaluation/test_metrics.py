@@ -5,7 +5,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from diana_lab.evaluation.metrics import SUMMARY_KEYS, mean_ci, ratio_ci, spl, summarize, to_json, wilson
+from diana_lab.config.evaluation import EvalConfig
+from diana_lab.evaluation.metrics import (
+    MIN_GOAL_SPEED,
+    SUMMARY_KEYS,
+    mean_ci,
+    ratio_ci,
+    spl,
+    summarize,
+    to_json,
+    wilson,
+)
 
 
 def rows(**cols):
@@ -76,7 +86,7 @@ def test_summary_has_every_key_rates_add_up_and_serialises_without_nan():
     s = summarize(df)
     for key in SUMMARY_KEYS:
         assert key in s
-        if key not in ("episodes", "min_speed_mps"):
+        if key not in ("episodes", "min_speed_mps", "slow_successes"):
             assert len(s[f"{key}_ci95"]) == 2
     assert s["episodes"] == 4 and s["success_rate"] == 0.0
     assert [s[k] for k in ("collision_rate", "tipover_rate", "stuck_rate", "timeout_rate")] == [0.25] * 4
@@ -92,3 +102,14 @@ def test_speed_statistics_use_successful_episodes_only():
     s = summarize(df)
     assert s["mean_speed_mps"] == pytest.approx(0.25)
     assert s["min_speed_mps"] == pytest.approx(0.2)
+    assert s["slow_successes"] == 0
+
+
+def test_slow_successes_count_the_successes_under_the_minimum_goal_speed_and_only_those():
+    """The issue's speed target is met only when no successful episode is slower than 0.083 m/s: a count, not the
+    mean (0.2 here) or a minimum alone, says how far a policy is from it."""
+    df = rows(outcome=["success", "success", "success", "timeout"], speed_mps=[0.05, 0.083, 0.3, 0.01])
+    assert summarize(df)["slow_successes"] == 1  # 0.05 only: the timeout is no success, 0.083 is not under it
+    assert summarize(df, min_goal_speed=0.1)["slow_successes"] == 2
+    assert summarize(df, min_goal_speed=0.0)["slow_successes"] == 0
+    assert MIN_GOAL_SPEED == EvalConfig().min_goal_speed == 0.083  # the paper's figure, one value in both places

@@ -103,6 +103,7 @@ ROWS = [
     ),
     Bad("evaluate-episodes-zero", EVAL, ("policy=astar", "eval.episodes=0"), ("eval.episodes", "positive")),
     Bad("evaluate-unknown-dynamics", EVAL, ("policy=astar", "eval.dynamics=gazebo"), ("eval.dynamics", "physics")),
+    Bad("evaluate-negative-goal-speed", EVAL, ("policy=astar", "eval.min_goal_speed=-0.1"), ("eval.min_goal_speed",)),
     Bad("run-dir-under-a-file", TRAIN, ("hydra.run.dir={files}/afile/run",), ("hydra.run.dir", "afile", "file")),
     # ---- need the world, env or training stack built (seconds each): slow
     Bad(
