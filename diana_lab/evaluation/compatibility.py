@@ -130,17 +130,12 @@ def check_observation_space(
                 f"observation '{k}' is {want[k][0]} {want[k][1]} for the policy but {have[k][0]} {have[k][1]} here"
             )
     if problems:
-        hint = (
-            f" Differing config keys: {'; '.join(hints[:8])}."
-            if hints
-            else (
-                " Evaluate with the sensor settings the policy was trained with (sensor=..., "
-                "sensor.encoding=..., sensor.width/height)."
-            )
-        )
-        raise ConfigError(
-            f"policy {label}: trained with other observation settings than this evaluation: "
-            f"{'; '.join(problems)}.{hint}" + (f" {advice}" if advice else "")
+        raise _refusal(
+            f"policy {label}: trained with other observation settings than this evaluation: {'; '.join(problems)}.",
+            hints,
+            "Evaluate with the sensor settings the policy was trained with (sensor=..., sensor.encoding=..., "
+            "sensor.width/height).",
+            advice,
         )
 
 
@@ -166,12 +161,17 @@ def check_action_space(
         else tuple(model_space.shape or ()) == tuple(env_space.shape or ())
     )
     if not same:
-        hint = (
-            f" Differing config keys: {'; '.join(hints[:8])}."
-            if hints
-            else " Evaluate with the action_space the policy was trained with (action_space=..., headings, distances)."
-        )
-        raise ConfigError(
+        raise _refusal(
             f"policy {label}: trained on {describe(model_space)}, but this evaluation's action_space gives "
-            f"{describe(env_space)}.{hint}" + (f" {advice}" if advice else "")
+            f"{describe(env_space)}.",
+            hints,
+            "Evaluate with the action_space the policy was trained with (action_space=..., headings, distances).",
+            advice,
         )
+
+
+def _refusal(problem: str, hints: list[str] | None, fallback: str, advice: str | None) -> ConfigError:
+    """The error refusing a model: ``problem``, then the config keys that differ from its training's (at most 8;
+    ``fallback``, what to set, when they are not known), then ``advice``, what to re-run with."""
+    hint = f"Differing config keys: {'; '.join(hints[:8])}." if hints else fallback
+    return ConfigError(" ".join(part for part in (problem, hint, advice) if part))
