@@ -48,6 +48,17 @@ def output_file(value: Any, key: str = "output") -> Path:
     return path
 
 
+def task_overrides() -> list[str]:
+    """The command line's overrides of the running Hydra app (``hydra.overrides.task``), as typed.
+
+    Read unresolved: Hydra keeps them in a ListConfig, and iterating that resolves an override holding an
+    interpolation (``'reward.terms.pitch.params.deadband_deg=${...roll.params.deadband_deg}'``, as a sweep's
+    reproduce line carries) against the list, where a relative key is not found."""
+    from hydra.core.hydra_config import HydraConfig
+
+    return [str(o) for o in OmegaConf.to_container(HydraConfig.get().overrides.task, resolve=False)]
+
+
 def report(exc: BaseException) -> None:
     """Print one paragraph about a user error (the first line of the message, wrapped)."""
     message = str(exc).strip() or type(exc).__name__

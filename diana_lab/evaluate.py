@@ -38,7 +38,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from diana_lab.cli import UserError, hydra_app, output_file
+from diana_lab.cli import UserError, hydra_app, output_file, task_overrides
 
 __all__ = ["chosen_dynamics", "env_config", "main", "run"]
 
@@ -206,7 +206,7 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     hydra_cfg = HydraConfig.get()
-    overrides = list(hydra_cfg.overrides.task)
+    overrides = task_overrides()
     dynamics_keys = chosen_dynamics(cfg, overrides)
     run(cfg, Path(hydra_cfg.runtime.output_dir), dynamics_keys, overrides)
 

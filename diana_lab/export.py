@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from omegaconf import DictConfig
 
-from diana_lab.cli import hydra_app
+from diana_lab.cli import hydra_app, task_overrides
 
 __all__ = ["main"]
 
@@ -31,7 +31,7 @@ def main(cfg: DictConfig) -> None:
     # default; called outside this app (a composed config; another app's config left behind in the process), only
     # the settings that differ from the defaults show
     ours = HydraConfig.initialized() and HydraConfig.get().job.config_name == "export"
-    run(cfg, list(HydraConfig.get().overrides.task) if ours else None)
+    run(cfg, task_overrides() if ours else None)
 
 
 if __name__ == "__main__":

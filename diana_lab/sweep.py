@@ -19,7 +19,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from diana_lab.cli import hydra_app
+from diana_lab.cli import hydra_app, task_overrides
 
 __all__ = ["expand_shorthand", "main"]
 
@@ -38,7 +38,7 @@ def _task(cfg: DictConfig) -> float | None:
 
     hc = HydraConfig.get()
     try:
-        result = run_sweep(cfg, Path(hc.runtime.output_dir), tuple(hc.overrides.task))
+        result = run_sweep(cfg, Path(hc.runtime.output_dir), tuple(task_overrides()))
     except KeyboardInterrupt as exc:
         print("\ninterrupted: the running trial is marked FAIL; rerun the same command to continue", file=sys.stderr)
         sys.exit(interrupt_exit_code(exc))

@@ -2,8 +2,8 @@
 the trials as CSV and Optuna's plots as HTML (for the parent MLflow run).
 
 The reproduce line is the best trial's complete override line -- base overrides, the command line's,
-the sampled params and the budget -- shell-quoted, so pasting it trains the same configuration with
-``python -m diana_lab``.
+the sampled params, the budget and the seeds -- shell-quoted, so pasting it trains the same configuration with
+``python -m diana_lab`` (a multirun over the seeds when the study averaged several).
 """
 
 from __future__ import annotations
@@ -41,9 +41,13 @@ def counts(study: optuna.Study) -> dict[str, int]:
 
 
 def reproduce_command(plan: TrialPlan, trial: FrozenTrial) -> str:
-    """``python -m diana_lab <base> <command line> <best params> <budget> seed=<first seed>``."""
-    seed = plan.seeds[0] if plan.seeds else None
-    overrides = plan.overrides({p.key: trial.params[p.key] for p in plan.params if p.key in trial.params}, seed)
+    """``python -m diana_lab <base> <command line> <best params> <budget> seed=<seed>``; with several
+    ``sweep.seeds`` a multirun over them (``-m ... seed=0,1``), since the trial's value was their mean."""
+    values = {p.key: trial.params[p.key] for p in plan.params if p.key in trial.params}
+    if len(plan.seeds) > 1:
+        overrides = ["-m", *plan.overrides(values), f"seed={','.join(str(s) for s in plan.seeds)}"]
+    else:
+        overrides = plan.overrides(values, plan.seeds[0] if plan.seeds else None)
     return "python -m diana_lab " + " ".join(shlex.quote(o) for o in overrides)
 
 

@@ -77,6 +77,7 @@ class SweepResult:
     best_value: float = math.nan
     best_params: dict[str, Any] = field(default_factory=dict)
     best_trial: int | None = None
+    metric: str = ""  # the objective's summary key
     reproduce: str | None = None
     parent_run_id: str | None = None
     table: str = ""
@@ -170,7 +171,14 @@ def _report(
     study: optuna.Study, plan: TrialPlan, parent: ParentRun | None, out_dir: Path, full: bool, top: int
 ) -> SweepResult:
     counts = report.counts(study)
-    result = SweepResult(study.study_name, "", "", counts=counts, parent_run_id=parent.run_id if parent else None)
+    result = SweepResult(
+        study.study_name,
+        "",
+        "",
+        counts=counts,
+        metric=plan.spec.metric,
+        parent_run_id=parent.run_id if parent else None,
+    )
     best = report.best_trial(study)
     if best is not None:
         result.best_value, result.best_params, result.best_trial = float(best.value), dict(best.params), best.number
@@ -304,7 +312,12 @@ def summary_text(result: SweepResult, top: int = 10) -> str:
     if result.table:
         lines += ["", f"top trials (at most {top}):", result.table]
     if result.best_trial is not None:
-        lines += ["", f"best trial {result.best_trial}: {result.best_value:.4g}", "reproduce:", f"  {result.reproduce}"]
+        lines += [
+            "",
+            f"best trial {result.best_trial}: {result.metric or 'value'} = {result.best_value:.4g}",
+            "reproduce:",
+            f"  {result.reproduce}",
+        ]
     lines += ["", f"dashboard: {dashboard_command(result.storage)}"]
     if result.parent_run_id:
         lines.append(f"MLflow study run: {result.parent_run_id}")

@@ -58,10 +58,12 @@ class RunContext:
         from hydra.core.hydra_config import HydraConfig
         from hydra.types import RunMode
 
+        from diana_lab.cli import task_overrides
+
         hc = HydraConfig.get()
         choices = {g: str(v) for g, v in hc.runtime.choices.items() if g in TAG_GROUPS and v is not None}
         job_num = int(hc.job.num) if hc.mode == RunMode.MULTIRUN else None
-        return cls(Path(hc.runtime.output_dir), choices, tuple(hc.overrides.task), job_num)
+        return cls(Path(hc.runtime.output_dir), choices, tuple(task_overrides()), job_num)
 
     @property
     def override_string(self) -> str:

@@ -111,3 +111,61 @@ def test_pruning_stops_training_at_a_periodic_evaluation(tmp_path):
     (run,) = children
     assert run.info.status == "KILLED" and run.data.tags["optuna_state"] == "PRUNED"
     assert run.data.tags["mlflow.parentRunId"] == parent.run_id
+
+
+def test_the_reproduce_line_runs_as_printed_with_an_interpolated_base_override(tmp_path, capsys):
+    """The reward-shaping sweep ties pitch's deadband to roll's with a relative interpolation; pasted into
+    ``python -m diana_lab`` it used to fail (``Interpolation key 'roll.params.deadband_deg' not found``) while
+    the run read its command line's overrides."""
+    import shlex
+
+    import pytest
+    from omegaconf import OmegaConf
+
+    from tests.training.helpers import run_in_process as train_in_process
+
+    tie = "reward.terms.pitch.params.deadband_deg=${...roll.params.deadband_deg}"
+    params = {"reward.terms.roll.params.deadband_deg": "interval(1.0, 9.0)"}
+    path = write_sweep(tmp_path, n_trials=1, timesteps=64, extra_base=[tie], params=params)
+    assert run_in_process(sweep_args(tmp_path, path, "tracking.enabled=false")) == 0
+    out = capsys.readouterr().out
+    assert "best trial 0: spl = " in out  # the value is named by its metric
+    line = out.split("reproduce:\n", 1)[1].splitlines()[0].strip()
+    args = shlex.split(line)
+    assert args[:3] == ["python", "-m", "diana_lab"] and tie in args
+    run_dir = tmp_path / "again"
+    assert train_in_process([*args[3:], "tracking.enabled=false", f"hydra.run.dir={run_dir}"]) == 0
+    best = load_study(tmp_path).best_trial.params["reward.terms.roll.params.deadband_deg"]
+    cfg = OmegaConf.load(run_dir / ".hydra" / "config.yaml")
+    assert OmegaConf.select(cfg, "reward.terms.pitch.params.deadband_deg") == pytest.approx(best)
+    assert OmegaConf.select(cfg, "reward.terms.roll.params.deadband_deg") == pytest.approx(best)
+
+
+def test_with_several_seeds_the_reproduce_line_is_a_multirun_over_them(tmp_path):
+    """The trial's value was the mean over its seeds, so one seed would not reproduce it."""
+    import optuna
+
+    from diana_lab.sweeps.report import reproduce_command
+
+    path = write_sweep(tmp_path)
+    spec = load_spec(str(path))
+    trial = optuna.trial.create_trial(
+        params={"algo.learning_rate": 1e-3, "reward.terms.goal.weight": 5.0},
+        distributions={
+            "algo.learning_rate": optuna.distributions.FloatDistribution(1e-4, 1e-2, log=True),
+            "reward.terms.goal.weight": optuna.distributions.FloatDistribution(1.0, 20.0),
+        },
+        value=0.5,
+    )
+
+    def plan(seeds: tuple[int, ...]) -> TrialPlan:
+        return TrialPlan(
+            spec=spec, params=spec.params, cli=("world=flat",), seeds=seeds, out_dir=tmp_path, study_name="t"
+        )
+
+    several = reproduce_command(plan((3, 4)), trial).split()
+    assert several[:4] == ["python", "-m", "diana_lab", "-m"] and several[-1] == "seed=3,4"
+    assert "reward.terms.goal.weight=5.0" in several and not any(a.startswith("seed=3 ") for a in several)
+    one = reproduce_command(plan((3,)), trial).split()
+    assert "-m" not in one[3:] and one[-1] == "seed=3"
+    assert not any(a.startswith("seed=") for a in reproduce_command(plan(()), trial).split())
