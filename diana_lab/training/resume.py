@@ -118,16 +118,18 @@ def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
     if not steps:
         raise UserError(f"train.resume={run_id}: the run has no checkpoint artefact and its run dir '{local}' is gone")
     best = max(steps)
-    download_dir.mkdir(parents=True, exist_ok=True)
+    # into checkpoints/ of their own: download_artifacts puts a file artefact in the folder it is given
+    ckpt_dir = download_dir / "checkpoints"
+    ckpt_dir.mkdir(parents=True, exist_ok=True)
     for name in names:
         if name.endswith(f"_{best}_steps.zip") or name.endswith(f"_{best}_steps.pkl"):
-            client.download_artifacts(run_id, f"checkpoints/{name}", str(download_dir))
+            client.download_artifacts(run_id, f"checkpoints/{name}", str(ckpt_dir))
     config = None
     with contextlib.suppress(MlflowException, OSError):  # a run logged without its .hydra/: nothing to compare
         config = Path(client.download_artifacts(run_id, CONFIG, str(download_dir)))
         client.download_artifacts(run_id, OVERRIDES, str(download_dir))  # beside it, for check_resumable's advice
     return ResumePoint(
-        Checkpoint.at(download_dir / "checkpoints", best),
+        Checkpoint.at(ckpt_dir, best),
         run_id,
         tags.get("algo"),
         f"run {run_id} (downloaded checkpoint)",

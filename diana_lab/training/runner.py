@@ -87,6 +87,23 @@ def _saved_timesteps(model_zip: Path) -> int:
         raise UserError(f"train.resume: '{model_zip}' is not a Stable-Baselines3 model archive ({exc})") from exc
 
 
+def _resumed_steps(resume: ResumePoint) -> int:
+    """The steps the resumed model has trained (its checkpoint's name, else the archive's counter)."""
+    ckpt = resume.checkpoint
+    return ckpt.steps if ckpt.steps >= 0 else _saved_timesteps(ckpt.model)
+
+
+def _check_budget_left(resume: ResumePoint, total_timesteps: int) -> None:
+    """Refuse a budget the resumed model has already spent, before its MLflow run is reopened (a finished run
+    would otherwise end FAILED, its ``run_dir`` tag pointing at the new, empty folder)."""
+    done = _resumed_steps(resume)
+    if total_timesteps <= done:
+        raise UserError(
+            f"train.total_timesteps={total_timesteps}: the resumed model has already trained {done} steps; "
+            "set a larger total to continue"
+        )
+
+
 def _run_name(cfg: DictConfig, ctx: RunContext, tracking: TrackingConfig) -> str:
     if tracking.run_name:
         return tracking.run_name
@@ -164,7 +181,7 @@ class TrainingRun:
             self.model = build_model(self.algo, self.venv, self.seed, device)
         else:
             ckpt = self.resume.checkpoint
-            done = ckpt.steps if ckpt.steps >= 0 else _saved_timesteps(ckpt.model)
+            done = _resumed_steps(self.resume)
             # new episodes, not a replay of the first ones: the env seeds move on with the step count
             self.venv = make_training_env(self.cfg, self.train_cfg, self.seed + done)
             if self.algo.normalize:
@@ -348,6 +365,7 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
     spaces = check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
     if resume is not None:
         resume = _checked_resume(resume, cfg, *spaces, ctx.overrides)
+        _check_budget_left(resume, train_cfg.total_timesteps)
     for world in training_worlds(cfg, train_cfg)[1:]:  # and so does a bad train.worlds entry
         check_env({**env_config(cfg), "world": world}, seed)
     tracker, run, status, summary = Tracker(), None, "FAILED", {}

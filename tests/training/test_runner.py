@@ -73,9 +73,31 @@ def test_resume_continues_step_counter_and_run(algo, extra, tmp_path):
 def test_resume_from_run_dir_and_finished_budget_is_a_clear_error(tmp_path, capsys):
     base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "eval.every=0", "train.final_eval=false"]
     assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
+    client, (run,) = runs(tmp_path)
     capsys.readouterr()
-    assert run_in_process([*base, f"train.resume={tmp_path}/first", *store_args(tmp_path, "again")]) == 2
-    assert "train.total_timesteps" in capsys.readouterr().err
+    for spec in (f"{tmp_path}/first", run.info.run_id):
+        assert run_in_process([*base, f"train.resume={spec}", *store_args(tmp_path, "again")]) == 2
+        assert "the resumed model has already trained 256 steps" in capsys.readouterr().err
+    # refused before the finished run was reopened: it did not end FAILED, nor lose its run dir to the new one
+    after = client.get_run(run.info.run_id)
+    assert after.info.status == "FINISHED" and after.data.tags["run_dir"] == f"{tmp_path}/first"
+
+
+def test_resume_by_run_id_downloads_the_checkpoint_when_the_run_dir_is_gone(tmp_path):
+    base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "algo.normalize=true", "eval.every=0", "train.final_eval=false"]
+    assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
+    client, (run,) = runs(tmp_path)
+    (tmp_path / "first").rename(tmp_path / "moved")  # another machine, a cleaned-up outputs/ folder
+    resume = ["train.total_timesteps=512", f"train.resume={run.info.run_id}", *store_args(tmp_path, "second")]
+    assert run_in_process([*base, *resume]) == 0
+    assert sorted(p.name for p in (tmp_path / "second" / "resume" / "checkpoints").iterdir()) == [
+        "rl_model_256_steps.zip",
+        "rl_model_vecnormalize_256_steps.pkl",
+    ]
+    after = client.get_run(run.info.run_id)
+    assert after.info.status == "FINISHED" and after.data.tags["resumed_from"].endswith("(downloaded checkpoint)")
+    steps = sorted(m.step for m in client.get_metric_history(run.info.run_id, "time/total_timesteps"))
+    assert steps[0] < 256 < steps[-1]  # counted on from the downloaded checkpoint
 
 
 def test_resume_in_another_env_is_refused_or_reported_naming_the_keys(tmp_path, capsys):
