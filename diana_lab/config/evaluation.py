@@ -12,6 +12,7 @@ from diana_lab.config.sensing import MAX_RAYS
 from diana_lab.config.store import register
 from diana_lab.config.validation import (
     ConfigError,
+    check_seed,
     in_range,
     length,
     non_negative,
@@ -226,6 +227,7 @@ class EvalConfig:
 
     def __post_init__(self) -> None:
         positive_int("eval.episodes", self.episodes)
+        check_seed("eval.seed", self.seed)
         non_negative_int("eval.every", self.every, "0 disables")
         non_negative("eval.min_distance", self.min_distance)
         ordered("eval.min_distance", self.min_distance, "eval.max_distance", self.max_distance)

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 from omegaconf import MISSING
 
-from diana_lab.config.validation import ConfigError, in_range, non_negative, ordered, positive
+from diana_lab.config.validation import ConfigError, check_seed, in_range, non_negative, ordered, positive
 
 # ----------------------------------------------------------------------------------------------- world
 
@@ -21,6 +21,7 @@ class WorldConfig:
     obstacle_resolution: float = 0.1
 
     def __post_init__(self) -> None:
+        check_seed("world.seed", self.seed)
         positive("world.obstacle_resolution", self.obstacle_resolution)
 
 

@@ -104,6 +104,10 @@ ROWS = [
     Bad("evaluate-episodes-zero", EVAL, ("policy=astar", "eval.episodes=0"), ("eval.episodes", "positive")),
     Bad("evaluate-unknown-dynamics", EVAL, ("policy=astar", "eval.dynamics=gazebo"), ("eval.dynamics", "physics")),
     Bad("evaluate-negative-goal-speed", EVAL, ("policy=astar", "eval.min_goal_speed=-0.1"), ("eval.min_goal_speed",)),
+    # numpy's own "expected non-negative integer" named no key, and training had opened its run first
+    Bad("evaluate-negative-suite-seed", EVAL, ("policy=straight", "eval.seed=-5"), ("eval.seed", "2**32 - 1", "-5")),
+    Bad("train-negative-suite-seed", TRAIN, ("eval.seed=-5",), ("eval.seed", "2**32 - 1")),
+    Bad("negative-world-seed", EVAL, ("policy=straight", "world=craters", "world.seed=-3"), ("world.seed", "-3")),
     Bad("run-dir-under-a-file", TRAIN, ("hydra.run.dir={files}/afile/run",), ("hydra.run.dir", "afile", "file")),
     # ---- need the world, env or training stack built (seconds each): slow
     Bad(
