@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -101,18 +102,41 @@ class TermConfig:
     weight: float = 1.0
     params: dict[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def checked(cls, name: str, value: Any) -> TermConfig:
+        """A term from its config mapping, every key checked and named (``reward.terms.<name>.<key>``)."""
+        if isinstance(value, TermConfig):
+            return value
+        where = f"reward.terms.{name}"
+        if not isinstance(value, Mapping):
+            raise ConfigError(f"{where}: expected a mapping {{fn, weight, params}}, got {value!r}")
+        unknown = sorted(set(value) - {"fn", "weight", "params"})
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {unknown}; a term has fn, weight and params")
+        fn, weight, params = value.get("fn"), value.get("weight", 1.0), value.get("params") or {}
+        if not isinstance(fn, str) or not fn or fn == MISSING:
+            raise ConfigError(f"{where}.fn: expected a function's dotted path (module.function), got {fn!r}")
+        if isinstance(weight, bool) or not isinstance(weight, int | float) or not math.isfinite(weight):
+            raise ConfigError(f"{where}.weight: expected a number, got {weight!r}")
+        if not isinstance(params, Mapping):
+            raise ConfigError(f"{where}.params: expected a mapping of keyword arguments, got {params!r}")
+        return cls(fn, float(weight), dict(params))
+
 
 @dataclass
 class RewardConfig:
+    """``terms``: name -> ``{fn, weight, params}``. The values are untyped in the schema so that a term can be
+    added from the command line (``'+reward.terms.mine={fn: mymod.my_term, weight: 0.5}'``): OmegaConf refuses
+    a plain mapping as a new value of a ``Dict[str, TermConfig]``. Each is checked into a :class:`TermConfig`
+    here, naming its keys."""
+
     name: str = MISSING
-    terms: dict[str, TermConfig] = field(default_factory=dict)
+    terms: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.terms:
             raise ConfigError("reward.terms: expected at least one reward term")
-        for key, term in self.terms.items():
-            if not isinstance(term.weight, int | float):
-                raise ConfigError(f"reward.terms.{key}.weight: expected a number, got {term.weight!r}")
+        self.terms = {str(key): TermConfig.checked(str(key), term) for key, term in self.terms.items()}
 
 
 @dataclass

@@ -83,3 +83,46 @@ def test_stall_pays_for_a_waypoint_the_controller_could_not_finish(wp, want):
     from diana_lab.envs.rewards import stall
 
     assert stall(ctx(wp=wp)) == want
+
+
+def double_progress(ctx: RewardContext, scale: float = 2.0) -> float:
+    """A user's own term, for the test below: ``scale`` times the progress made."""
+    return scale * (ctx.prev_distance - ctx.distance)
+
+
+def test_a_term_of_ones_own_is_added_from_the_command_line_and_reported_per_step():
+    """``{fn, weight, params}`` is data: a new term needs no code in the package and no config file."""
+    from diana_lab.config import compose
+    from diana_lab.envs.rover_nav import RoverNavEnv
+    from diana_lab.training.envs import env_config
+
+    mine = "+reward.terms.mine={fn: tests.envs.test_rewards.double_progress, weight: 0.5, params: {scale: 3.0}}"
+    cfg = compose(["world=flat", "sensor.width=16", "sensor.height=12", mine])
+    reward = to_object("reward", cfg.reward)
+    assert reward.terms["mine"].fn.endswith("double_progress") and reward.terms["mine"].params == {"scale": 3.0}
+    assert RewardManager(reward)(ctx(prev=10.0, dist=8.0))[1]["mine"] == pytest.approx(0.5 * 3.0 * 2.0)
+    env = RoverNavEnv(config=env_config(cfg))
+    try:
+        env.reset(seed=0)
+        _, total, *_, info = env.step(env.action_space.sample())
+        assert "mine" in info["reward_terms"] and total == pytest.approx(sum(info["reward_terms"].values()))
+    finally:
+        env.close()
+    # the same, one key at a time
+    keys = ["+reward.terms.mine.fn=tests.envs.test_rewards.double_progress", "+reward.terms.mine.weight=0.25"]
+    assert to_object("reward", compose(keys).reward).terms["mine"].weight == 0.25
+
+
+@pytest.mark.parametrize(
+    ("term", "named"),
+    [
+        ({"weight": 1.0}, r"reward\.terms\.x\.fn: expected a function's dotted path"),
+        ({"fn": "diana_lab.envs.rewards.goal", "wieght": 1.0}, r"reward\.terms\.x: unknown key\(s\) \['wieght'\]"),
+        ({"fn": "diana_lab.envs.rewards.goal", "weight": "heavy"}, r"reward\.terms\.x\.weight: expected a number"),
+        ({"fn": "diana_lab.envs.rewards.goal", "params": [1]}, r"reward\.terms\.x\.params: expected a mapping"),
+        (3.0, r"reward\.terms\.x: expected a mapping"),
+    ],
+)
+def test_a_malformed_term_is_refused_naming_its_key(term, named):
+    with pytest.raises(ConfigError, match=named):
+        to_object("reward", {"name": "t", "terms": {"x": term}})
