@@ -171,7 +171,13 @@ def load_elevation(path: str | Path, key: str = "world.path") -> np.ndarray:
         raise
     except Exception as exc:
         raise ConfigError(f"{key}: could not read '{path}' as an elevation model ({exc})") from exc
-    if data.ndim == 3:  # a grey image saved with colour channels: all channels must agree
+    if data.ndim == 3 and data.shape[-1] in (3, 4):  # a grey image saved as RGB(A): its colours must agree
+        rgb = data[..., :3]
+        if not np.array_equal(rgb, np.broadcast_to(rgb[..., :1], rgb.shape)):
+            raise ConfigError(
+                f"{key}: '{path}' is a colour image (its red, green and blue differ); expected a greyscale "
+                "elevation model (one height per pixel)"
+            )
         data = data[..., 0]
     if data.ndim != 2 or min(data.shape) < 2:
         raise ConfigError(f"{key}: '{path}' holds an array of shape {data.shape}; expected a 2-D grid of >= 2 x 2")

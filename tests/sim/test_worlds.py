@@ -50,7 +50,7 @@ def test_rock_density_is_configurable():
     assert len(many.obstacles) > 5 * max(len(few.obstacles), 1)
 
 
-@pytest.mark.parametrize("suffix", [".tif", ".npy", ".png"])
+@pytest.mark.parametrize("suffix", [".tif", ".npy", ".png", "_rgb.png"])
 def test_dem_world_reads_user_files(tmp_path, suffix):
     grid = np.outer(np.linspace(0, 1, 20), np.ones(30))  # rises towards the image bottom = south
     path = tmp_path / f"site{suffix}"
@@ -58,8 +58,10 @@ def test_dem_world_reads_user_files(tmp_path, suffix):
         tifffile.imwrite(path, grid)
     elif suffix == ".npy":
         np.save(path, grid)
-    else:
+    elif suffix == ".png":
         Image.fromarray((grid * 65535).astype(np.uint16)).save(path)
+    else:  # a grey height map saved with colour channels (8 bits: heights within 1/255 of the scale)
+        Image.fromarray(np.repeat((grid * 255).round().astype(np.uint8)[..., None], 3, axis=2)).save(path)
     world = build(
         to_object(
             "world",
@@ -110,6 +112,8 @@ def test_dem_world_with_obstacle_mesh(tmp_path):
         ("garbage", "world.path", "could not read"),
         ("txt", "world.path", "unsupported format"),
         ("mesh", "world.obstacles[0]", "not found"),
+        ("stack", "world.path", "shape (3, 4, 5)"),  # was read as its first of 5 layers, without a word
+        ("colour", "world.path", "colour image"),
     ],
 )
 def test_dem_errors_name_the_key_and_file(tmp_path, setup, key, expected):
@@ -117,6 +121,13 @@ def test_dem_errors_name_the_key_and_file(tmp_path, setup, key, expected):
     obstacles = []
     if setup == "nan":
         np.save(path, np.full((4, 4), math.nan))
+    elif setup == "stack":
+        np.save(path, np.zeros((3, 4, 5)))
+    elif setup == "colour":
+        path = tmp_path / "dem.png"
+        rgb = np.zeros((4, 4, 3), dtype=np.uint8)
+        rgb[..., 0] = 200  # red where a height map would be grey
+        Image.fromarray(rgb).save(path)
     elif setup == "garbage":
         path = tmp_path / "dem.tif"
         path.write_bytes(b"not a tiff")
