@@ -3,7 +3,9 @@
 Accepted: an MLflow run id (its Hydra run dir's newest checkpoint when that dir still exists, else the
 newest checkpoint artefact, downloaded), a Hydra run dir (its ``checkpoints/``, else ``model/``), a
 checkpoints dir, or a model ``.zip``. A run dir's ``run_info.json`` names its MLflow run, so resuming from a
-path also continues the same MLflow run when the store is the same.
+path also continues the same MLflow run when the store is the same -- unless that run has a newer checkpoint
+than the one resumed (it was resumed and trained on since): its logged history would then be overwritten from an
+older point, so training goes on in a new MLflow run tagged ``branched_from`` instead.
 
 :func:`check_resumable` compares the env the run continues in with the one it was trained in (its
 ``.hydra/config.yaml``): other observations or actions are an error naming the config keys that differ (and
@@ -28,7 +30,15 @@ from omegaconf import DictConfig, OmegaConf
 from diana_lab.cli import UserError
 from diana_lab.training.checkpoints import MODEL_RE, Checkpoint, latest_checkpoint
 
-__all__ = ["RUN_INFO", "ResumePoint", "check_resumable", "find_resume_point", "read_run_info", "write_run_info"]
+__all__ = [
+    "RUN_INFO",
+    "ResumePoint",
+    "check_resumable",
+    "find_resume_point",
+    "newest_checkpoint_steps",
+    "read_run_info",
+    "write_run_info",
+]
 
 RUN_INFO = "run_info.json"
 CONFIG = ".hydra/config.yaml"  # the training's composed config, in its run dir and among its MLflow artefacts
@@ -44,6 +54,7 @@ class ResumePoint:
     source: str  # for messages
     config: Path | None = None  # the training's .hydra/config.yaml, if known
     changes: tuple[str, ...] = ()  # the env settings that differ from the training's (check_resumable's)
+    branched_from: str | None = None  # the MLflow run a stale checkpoint came from (continued in a new run)
 
 
 def write_run_info(run_dir: Path, info: dict[str, Any]) -> None:
@@ -135,6 +146,25 @@ def _from_run(run_id: str, uri: str, download_dir: Path) -> ResumePoint:
         f"run {run_id} (downloaded checkpoint)",
         config,
     )
+
+
+def newest_checkpoint_steps(run_id: str, uri: str) -> int | None:
+    """The most steps of any checkpoint MLflow run ``run_id`` has: in its run dir (its ``run_dir`` tag, the
+    latest folder it trained in) or among its artefacts; ``None`` if it has none or cannot be read."""
+    from mlflow.exceptions import MlflowException
+    from mlflow.tracking import MlflowClient
+
+    client = MlflowClient(uri)
+    try:
+        run = client.get_run(run_id)
+        names = [Path(a.path).name for a in client.list_artifacts(run_id, "checkpoints")]
+    except MlflowException:
+        return None
+    steps = [int(m.group(1)) for n in names if (m := MODEL_RE.match(n))]
+    local = run.data.tags.get("run_dir")
+    if local and (found := latest_checkpoint(Path(local) / "checkpoints")) is not None:
+        steps.append(found.steps)
+    return max(steps, default=None)
 
 
 def find_resume_point(spec: str, uri: str | None, download_dir: Path) -> ResumePoint:

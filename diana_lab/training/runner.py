@@ -56,7 +56,13 @@ from diana_lab.training.episode_stats import EpisodeStats
 from diana_lab.training.imitation import ImitationResult, imitate
 from diana_lab.training.periodic_eval import PeriodicEvaluation, save_model
 from diana_lab.training.progress import ProgressWithStats
-from diana_lab.training.resume import ResumePoint, check_resumable, find_resume_point, write_run_info
+from diana_lab.training.resume import (
+    ResumePoint,
+    check_resumable,
+    find_resume_point,
+    newest_checkpoint_steps,
+    write_run_info,
+)
 from diana_lab.training.signals import InterruptCheck, interrupts_as_exceptions
 from diana_lab.training.summary import TrainResult
 
@@ -91,6 +97,22 @@ def _resumed_steps(resume: ResumePoint) -> int:
     """The steps the resumed model has trained (its checkpoint's name, else the archive's counter)."""
     ckpt = resume.checkpoint
     return ckpt.steps if ckpt.steps >= 0 else _saved_timesteps(ckpt.model)
+
+
+def _branch_if_stale(resume: ResumePoint, uri: str | None) -> ResumePoint:
+    """A checkpoint older than its MLflow run's newest continues in a new run (tagged ``branched_from``): in the
+    same run it would log its steps again over the history the run went on to (see diana_lab.training.resume)."""
+    if resume.run_id is None or uri is None:
+        return resume
+    newest, done = newest_checkpoint_steps(resume.run_id, uri), _resumed_steps(resume)
+    if newest is None or newest <= done:
+        return resume
+    print(
+        f"train.resume: {resume.source} is at {done} steps, but its MLflow run {resume.run_id} went on to "
+        f"{newest}; continuing in a new MLflow run (tag branched_from) to keep that run's history as it is. "
+        f"To continue from its newest checkpoint: train.resume={resume.run_id}"
+    )
+    return dataclasses.replace(resume, run_id=None, branched_from=resume.run_id)
 
 
 def _check_budget_left(resume: ResumePoint, total_timesteps: int) -> None:
@@ -159,6 +181,8 @@ class TrainingRun:
             tags["hydra_job"] = self.ctx.job_num
         if self.resume is not None:
             tags["resumed_from"] = self.resume.source
+            if self.resume.branched_from:
+                tags["branched_from"] = self.resume.branched_from
             if self.resume.changes:
                 tags["resume_config_changes"] = truncate("; ".join(self.resume.changes))
         t.set_tags(tags)
@@ -366,6 +390,7 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
     if resume is not None:
         resume = _checked_resume(resume, cfg, *spaces, ctx.overrides)
         _check_budget_left(resume, train_cfg.total_timesteps)
+        resume = _branch_if_stale(resume, uri)
     for world in training_worlds(cfg, train_cfg)[1:]:  # and so does a bad train.worlds entry
         check_env({**env_config(cfg), "world": world}, seed)
     tracker, run, status, summary = Tracker(), None, "FAILED", {}

@@ -83,6 +83,29 @@ def test_resume_from_run_dir_and_finished_budget_is_a_clear_error(tmp_path, caps
     assert after.info.status == "FINISHED" and after.data.tags["run_dir"] == f"{tmp_path}/first"
 
 
+def test_resuming_an_older_checkpoint_of_a_run_that_went_on_branches_into_a_new_run(tmp_path, capsys):
+    """The run was resumed from 256 to 512 steps elsewhere; resuming its first folder again (256 steps) used to
+    log 256..512 a second time into the same run, over the history it had."""
+    base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "eval.every=0", "train.final_eval=false"]
+    assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
+    client, (run,) = runs(tmp_path)
+    on = ["train.total_timesteps=512", f"train.resume={run.info.run_id}", *store_args(tmp_path, "second")]
+    assert run_in_process([*base, *on]) == 0
+    history = sorted(m.step for m in client.get_metric_history(run.info.run_id, "time/total_timesteps"))
+    capsys.readouterr()
+    again = ["train.total_timesteps=512", f"train.resume={tmp_path}/first", *store_args(tmp_path, "third")]
+    assert run_in_process([*base, *again]) == 0
+    assert f"its MLflow run {run.info.run_id} went on to 512" in capsys.readouterr().out
+    _, found = runs(tmp_path)
+    (branch,) = [r for r in found if r.info.run_id != run.info.run_id]
+    assert branch.data.tags["branched_from"] == run.info.run_id and branch.info.status == "FINISHED"
+    steps = sorted(m.step for m in client.get_metric_history(branch.info.run_id, "time/total_timesteps"))
+    assert steps[0] > 256 and steps[-1] >= 512  # counted on from the older checkpoint, in the new run
+    after = client.get_run(run.info.run_id)  # the original run as it was
+    assert sorted(m.step for m in client.get_metric_history(run.info.run_id, "time/total_timesteps")) == history
+    assert after.data.tags["run_dir"] == f"{tmp_path}/second"
+
+
 def test_resume_by_run_id_downloads_the_checkpoint_when_the_run_dir_is_gone(tmp_path):
     base = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "algo.normalize=true", "eval.every=0", "train.final_eval=false"]
     assert run_in_process([*base, *store_args(tmp_path, "first")]) == 0
@@ -119,9 +142,9 @@ def test_resume_in_another_env_is_refused_or_reported_naming_the_keys(tmp_path, 
     assert err.endswith("Re-run with the training's overrides: sensor.width=16"), err
 
     assert run_in_process([*base, "reward.terms.goal.weight=20", *resume, *store_args(tmp_path, "second")]) == 0
-    assert "reward.terms.goal.weight: training 10.0, here 20.0" in capsys.readouterr().out
+    assert "reward.terms.goal.weight: training 10.0, here 20" in capsys.readouterr().out
     tags = client.get_run(run.info.run_id).data.tags
-    assert "reward.terms.goal.weight: training 10.0, here 20.0" in tags["resume_config_changes"]
+    assert "reward.terms.goal.weight: training 10.0, here 20" in tags["resume_config_changes"]
 
 
 def test_eval_sensor_noise_sweeps_the_final_evaluation(tmp_path, capsys):
