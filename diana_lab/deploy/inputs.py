@@ -35,7 +35,10 @@ class Pose:
             fields = (pose.x, pose.y, pose.z, pose.roll, pose.pitch, pose.yaw)
             if all(type(v) is float and math.isfinite(v) for v in fields):
                 return pose  # frozen, Python floats and finite: nothing to convert
-            values = np.array([pose.x, pose.y, pose.z, pose.roll, pose.pitch, pose.yaw], dtype=np.float64)
+            try:
+                values = np.array([pose.x, pose.y, pose.z, pose.roll, pose.pitch, pose.yaw], dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"pose: expected 6 numbers (x, y, z, roll, pitch, yaw), got {pose!r}") from exc
         else:
             try:
                 values = np.asarray(pose, dtype=np.float64)
@@ -45,6 +48,8 @@ class Pose:
                 raise ValueError(f"pose: expected shape (6,) = (x, y, z, roll, pitch, yaw), got {values.shape}")
         if not np.all(np.isfinite(values)):
             raise ValueError(f"pose: expected finite values, got {values.tolist()}")
+        if np.any(np.abs(values[3:5]) > math.pi):  # a rover's roll and pitch: degrees given for radians
+            raise ValueError(f"pose: roll and pitch are radians within [-pi, pi], got {values[3:5].tolist()}")
         return cls(*(float(v) for v in values))
 
     @property
@@ -72,6 +77,8 @@ def check_cloud(cloud: Any, drop_invalid: bool = False) -> np.ndarray:
     missing pixels with NaN; dropping them is then the intended behaviour, but it must be asked for).
     An empty cloud is always an error: it is far more often a broken driver than a clear view.
     """
+    if not isinstance(drop_invalid, bool | np.bool_):
+        raise ValueError(f"drop_invalid: expected True or False, got {drop_invalid!r}")
     try:
         pts = np.asarray(cloud, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -181,6 +181,14 @@ class Navigator:
         return self._waypoint(p, self._decide(p, self._observation(p, g, pts), pts, g))
 
     def _observation(self, p: Pose, goal: np.ndarray, pts: np.ndarray) -> dict[str, np.ndarray]:
+        if not len(self.encoder.visible_rover_points(pts)):  # kept: the encoding and the shield ask again
+            sensor = self.spec.sensor
+            raise ValueError(
+                f"cloud: none of its {len(pts)} points lies within the trained {sensor.type}'s field of view and "
+                f"range ({sensor.min_range:g}-{sensor.max_range:g} m); expected metres in the sensor's body frame "
+                "(x forward, y left, z up: convert an optical-frame cloud with optical_to_body). A view with no "
+                "returns is treated as a sensor failure, not as free space"
+            )
         return {
             "goal": goal_vector(p, goal, self.spec.distance_scale, self._low, self._high),
             self.sensor_key: self.encoder(pts, p),

@@ -122,11 +122,23 @@ def test_depth_image_keeps_the_nearest_return_and_drops_what_the_sensor_cannot_s
         ({"cloud": np.zeros((0, 3))}, "cloud: no points"),
         ({"cloud": np.ones((3, 40))}, r"cloud: expected shape \(N, 3\)"),
         ({"cloud": np.array([[1.0, 0.0, 0.0], [np.nan, 0.0, 0.0]])}, "cloud: 1 of 2 points are NaN.*drop_invalid"),
+        ({"pose": Pose("a", 0.0, 0.0, 0.0, 0.0, 0.0)}, "pose: expected 6 numbers"),
+        ({"pose": (0.0, 0.0, 0.0, 10.0, 0.0, 0.0)}, r"pose: roll and pitch are radians"),  # degrees
+        ({"drop_invalid": "no"}, "drop_invalid: expected True or False"),
+        # nothing the trained sensor could see (millimetres, an optical-frame cloud, one far point): it used to
+        # encode as "no returns" and drive, the shield taking the unseen ground as free
+        ({"cloud": "mm"}, "cloud: none of its .* points lies within the trained depth_camera's field of view"),
+        ({"cloud": "optical"}, "cloud: none of its .* points lies within"),
+        ({"cloud": np.array([[1e5, 0.0, 0.0]])}, "cloud: none of its 1 points lies within"),
     ],
 )
 def test_bad_inputs_raise_value_errors_naming_the_argument(nav, kwargs, match):
-    args = {"pose": (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), "goal": (5.0, 0.0), "cloud": synthetic_cloud(nav.spec.sensor)}
+    cloud = synthetic_cloud(nav.spec.sensor)
+    args = {"pose": (0.0, 0.0, 0.0, 0.0, 0.0, 0.0), "goal": (5.0, 0.0), "cloud": cloud}
     args.update(kwargs)
+    if isinstance(args["cloud"], str):
+        # millimetres; or body-frame points read as optical ones (z forward: every point behind the camera)
+        args["cloud"] = cloud * 1000.0 if args["cloud"] == "mm" else cloud[:, [1, 2, 0]] * np.array([1.0, 1.0, -1.0])
     with pytest.raises(ValueError, match=match):
         nav.next_waypoint(**args)
 
