@@ -48,19 +48,38 @@ def _short(value: str) -> str:
     return value if len(value) <= MAX_VALUE_CHARS else value[: MAX_VALUE_CHARS - 1] + "…"
 
 
+def _label(row: pd.Series, columns: Sequence[str]) -> str:
+    items = [f"{c[len('params.') :]}={_short(row[c])}" for c in columns[:MAX_LABEL_ITEMS]]
+    extra = len(columns) - MAX_LABEL_ITEMS
+    return ", ".join(items) + (f" +{extra} more" if extra > 0 else "")
+
+
 def _variant_labels(block: pd.DataFrame, columns: list[str]) -> pd.Series:
-    """Within runs of the same options, a label of the config values that differ ("" when none do)."""
+    """Within runs of the same options, a label of the config values that differ ("" when none do), one label
+    per distinct set of values: runs are grouped by their labels, so two configs must never share one.
+
+    A label names at most ``MAX_LABEL_ITEMS`` values, each cut to ``MAX_VALUE_CHARS``; configs that differ only
+    beyond that are labelled again by the values that tell *them* apart, and numbered if even those do not."""
     values = block[columns].fillna("").astype(str)
     varying = [c for c in columns if values[c].nunique() > 1]
     if not varying:
         return pd.Series([""] * len(block), index=block.index, dtype=object)
-
-    def label(row: pd.Series) -> str:
-        items = [f"{c[len('params.') :]}={_short(row[c])}" for c in varying[:MAX_LABEL_ITEMS]]
-        extra = len(varying) - MAX_LABEL_ITEMS
-        return ", ".join(items) + (f" +{extra} more" if extra > 0 else "")
-
-    return values.apply(label, axis=1)
+    keys = values[varying].apply(tuple, axis=1)  # the whole config difference: what makes a group
+    labels = values.apply(_label, axis=1, columns=varying)
+    for shared in labels[labels.duplicated(keep=False)].unique():
+        same = labels == shared
+        group_keys = keys[same]
+        if group_keys.nunique() < 2:
+            continue
+        telling = [c for c in varying if values.loc[same, c].nunique() > 1]
+        new = pd.Series({i: f"{shared} | {_label(values.loc[i], telling)}" for i in group_keys.index}, dtype=object)
+        for text in new[new.duplicated(keep=False)].unique():  # still shared by configs (values cut short)
+            clash = new == text
+            if group_keys[clash].nunique() > 1:
+                for n, key in enumerate(dict.fromkeys(group_keys[clash]), start=1):
+                    new[clash & (group_keys == key)] = f"{text} (#{n})"
+        labels[same] = new
+    return labels
 
 
 def assign_groups(df: pd.DataFrame, group_by: Sequence[str], variants: bool = True) -> pd.DataFrame:

@@ -148,3 +148,28 @@ def test_groups_whose_runs_share_a_seed_are_reported():
     assert repeated_seeds(table) == {"a": ["1"], "b": ["?"]}  # c's seeds differ: a spread over seeds
     seeds = aggregate(table, (), ["m"]).set_index("group")["seeds"]
     assert seeds.to_dict() == {"a": "1,1,2", "b": "?,?", "c": "0,10"}
+
+
+def test_configs_that_differ_beyond_the_label_are_never_one_group():
+    """Labels name three values, each cut to 24 characters; runs were grouped by label, so a sweep's trials
+    that differed only in a fourth key (or past the cut) were averaged as if they were seeds of one config."""
+    long = "x" * 40
+    runs = pd.DataFrame(
+        {
+            "run_id": [f"r{i}" for i in range(7)],
+            "tags.algo": "ppo",
+            "tags.seed": ["0", "1", "0", "0", "0", "0", "0"],
+            "params.a": ["1", "1", "2", "1", "1", "1", "1"],
+            "params.b": "1",
+            "params.c": "1",
+            "params.d": ["1", "1", "1", "2", "1", "1", "1"],
+            "params.e": ["1", "1", "1", "1", "2", "1", "1"],
+            "params.f": ["1", "1", "1", "1", "1", f"{long}1", f"{long}2"],  # differ past the cut
+        }
+    )
+    g = assign_groups(runs, ("algo",))
+    assert g["group"].nunique() == 6  # runs 0 and 1 (seeds 0 and 1 of one config) together, the rest apart
+    assert g.loc[0, "group"] == g.loc[1, "group"]
+    assert g.loc[5, "group"] != g.loc[6, "group"]
+    # the labels of configs the first three values do not tell apart name what does
+    assert "d=2" in g.loc[3, "group"] and "e=2" in g.loc[4, "group"]
