@@ -130,6 +130,17 @@ class SweepClient:
         return killed
 
     @uninterrupted()
+    def settle_trial_runs(self, study_name: str, trial_number: int, state: str) -> None:
+        """Tag ``optuna_state`` on the runs of a trial that ended without one (it raised, or was interrupted)."""
+        found = self.client.search_runs(
+            [self.experiment_id()],
+            filter_string=f"tags.optuna_study = '{study_name}' and tags.optuna_trial = '{trial_number}'",
+        )
+        for run in found:
+            if "optuna_state" not in run.data.tags:
+                self.client.set_tag(run.info.run_id, "optuna_state", state)
+
+    @uninterrupted()
     def log_artifact(self, run_id: str, path: Path, artifact_path: str | None = None) -> None:
         self.client.log_artifact(run_id, str(path), artifact_path)
 

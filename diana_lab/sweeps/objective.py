@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import statistics
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -29,7 +30,7 @@ from diana_lab.sweeps.compose import compose_run
 from diana_lab.sweeps.mlflow_runs import SweepClient
 from diana_lab.sweeps.space import Param, format_value
 from diana_lab.sweeps.spec import BUDGET_KEYS, SweepSpec
-from diana_lab.sweeps.study import ERROR_ATTR, INTERRUPTED_ATTR, WORKER_ATTR
+from diana_lab.sweeps.study import ERROR_ATTR, INTERRUPTED_ATTR, OVERRIDES_ATTR, SEEDS_ATTR, WORKER_ATTR
 from diana_lab.training.context import RunContext, StopRun
 from diana_lab.training.signals import raise_pending
 
@@ -122,16 +123,30 @@ class Objective:
             raise
         except KeyboardInterrupt as exc:
             trial.set_user_attr(INTERRUPTED_ATTR, type(exc).__name__)
+            self._settle(trial.number)
             raise
         except Exception as exc:
             trial.set_user_attr(ERROR_ATTR, f"{type(exc).__name__}: {exc}"[:1000])
+            self._settle(trial.number)
             raise
+
+    def _settle(self, number: int) -> None:
+        """The trial's MLflow runs say FAIL too (completed and pruned ones are tagged as they end)."""
+        if self.plan.client is None:
+            return
+        try:
+            self.plan.client.settle_trial_runs(self.plan.study_name, number, "FAIL")
+        except Exception as exc:  # the trial's own error is what matters: say this one, do not raise it instead
+            print(f"note: could not tag trial {number}'s MLflow runs optuna_state=FAIL ({exc})", file=sys.stderr)
 
     def _run(self, trial: optuna.Trial, values: dict[str, Any]) -> float:
         from diana_lab.training import train
 
         plan = self.plan
         seeds: tuple[int | None, ...] = plan.seeds or (None,)
+        # the trial's own command line, for its reproduce line: a rerun of the study may change the budget
+        trial.set_user_attr(OVERRIDES_ATTR, plan.overrides(values))
+        trial.set_user_attr(SEEDS_ATTR, list(plan.seeds))
         trial_dir = plan.out_dir / f"trial_{trial.number:04d}"
         tags = {**plan.tags, "optuna_study": plan.study_name, "optuna_trial": trial.number}
         group = _SeedGroup.open(plan, trial.number, values, tags) if len(seeds) > 1 else None

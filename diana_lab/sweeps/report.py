@@ -19,6 +19,7 @@ import pandas as pd
 from optuna.trial import FrozenTrial, TrialState
 
 from diana_lab.sweeps.objective import SUMMARY_ATTRS, TrialPlan
+from diana_lab.sweeps.study import OVERRIDES_ATTR, SEEDS_ATTR
 
 __all__ = ["best_trial", "counts", "reproduce_command", "top_table", "write_plots", "write_trials_csv"]
 
@@ -41,13 +42,19 @@ def counts(study: optuna.Study) -> dict[str, int]:
 
 
 def reproduce_command(plan: TrialPlan, trial: FrozenTrial) -> str:
-    """``python -m diana_lab <base> <command line> <best params> <budget> seed=<seed>``; with several
-    ``sweep.seeds`` a multirun over them (``-m ... seed=0,1``), since the trial's value was their mean."""
-    values = {p.key: trial.params[p.key] for p in plan.params if p.key in trial.params}
-    if len(plan.seeds) > 1:
-        overrides = ["-m", *plan.overrides(values), f"seed={','.join(str(s) for s in plan.seeds)}"]
+    """``python -m diana_lab <base> <command line> <best params> <budget> seed=<seed>`` as the trial ran (its
+    recorded override line: a rerun of the study with another budget does not change it); with several seeds a
+    multirun over them (``-m ... seed=0,1``), since the trial's value was their mean."""
+    recorded = trial.user_attrs.get(OVERRIDES_ATTR)
+    if recorded is not None:
+        base, seeds = [str(o) for o in recorded], [int(s) for s in trial.user_attrs.get(SEEDS_ATTR) or []]
+    else:  # a trial from before the line was recorded: this worker's plan
+        base = plan.overrides({p.key: trial.params[p.key] for p in plan.params if p.key in trial.params})
+        seeds = list(plan.seeds)
+    if len(seeds) > 1:
+        overrides = ["-m", *base, f"seed={','.join(str(s) for s in seeds)}"]
     else:
-        overrides = plan.overrides(values, plan.seeds[0] if plan.seeds else None)
+        overrides = base + [f"seed={s}" for s in seeds]
     return "python -m diana_lab " + " ".join(shlex.quote(o) for o in overrides)
 
 

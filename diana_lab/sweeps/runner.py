@@ -149,6 +149,35 @@ def _command_line_budget(spec: SweepSpec, settings: SweepConfig, fixed: set[str]
     return dataclasses.replace(spec, **dropped)
 
 
+SETUP_ATTR = "trial_setup"  # the override line every trial shares (all but the sampled params), and the seeds
+
+
+def _note_setup_change(study: optuna.Study, plan: TrialPlan) -> None:
+    """Say so when this worker's trials would run otherwise than the study's earlier ones (another budget,
+    base or command line): their values are then not comparable, though the pruner and the best trial compare
+    them. Allowed (a study may be topped up on purpose), but never silent."""
+    setup = {"overrides": plan.overrides({}), "seeds": list(plan.seeds)}
+    before = study.user_attrs.get(SETUP_ATTR)
+    if before is None:
+        study.set_user_attr(SETUP_ATTR, setup)
+        return
+    if before == setup:
+        return
+    old, new = before.get("overrides", []), setup["overrides"]
+    gone, added = [o for o in old if o not in new], [o for o in new if o not in old]
+    if before.get("seeds") != setup["seeds"]:
+        gone.append(f"seeds {before.get('seeds')}")
+        added.append(f"seeds {setup['seeds']}")
+    print(
+        f"note: study '{study.study_name}' ran its earlier trials with {' '.join(gone) or '(nothing else)'}; these "
+        f"run with {' '.join(added) or '(nothing else)'}. Their values are not comparable, though the pruner and "
+        "the best trial compare them: give another sweep.name for a separate study. Each trial's reproduce line "
+        "is its own.",
+        file=sys.stderr,
+    )
+    study.set_user_attr(SETUP_ATTR, setup)
+
+
 def _parent_run(
     study: optuna.Study, created: bool, tracking: TrackingConfig, name: str, tags: dict[str, Any]
 ) -> ParentRun | None:
@@ -265,6 +294,7 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
                 client=parent.client if parent else None,
                 tags={"sweep": spec.name},
             )
+            _note_setup_change(study, plan)
             budget = TrialBudget(spec.n_trials)
             left = budget.remaining(study)
             print(

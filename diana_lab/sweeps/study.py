@@ -43,6 +43,8 @@ __all__ = [
 ERROR_ATTR = "error"  # set by the objective when the trial itself raised: such a FAIL counts
 INTERRUPTED_ATTR = "interrupted"  # SIGINT / SIGTERM: the FAIL does not count, a rerun repeats the slot
 WORKER_ATTR = "worker"  # "host:pid:start" of the process running the trial
+OVERRIDES_ATTR = "overrides"  # the trial's override line (base, command line, params, budget), without the seed
+SEEDS_ATTR = "seeds"  # its training seeds ([]: the config's seed)
 CLAIMED = (TrialState.RUNNING, TrialState.WAITING, TrialState.COMPLETE, TrialState.PRUNED)
 
 

@@ -80,7 +80,36 @@ def test_failing_trial_is_recorded_and_the_study_goes_on(tmp_path):
     _, parents, children = mlflow_runs(tmp_path)
     by_trial = {int(r.data.tags["optuna_trial"]): r.info.status for r in children}
     assert by_trial == {0: "FAILED", 1: "FINISHED"}
+    states_tagged = {int(r.data.tags["optuna_trial"]): r.data.tags.get("optuna_state") for r in children}
+    assert states_tagged == {0: "FAIL", 1: "COMPLETE"}  # the failed trial's run said nothing before
     assert parents[0].info.status == "FINISHED"
+
+
+def test_a_rerun_with_another_budget_is_noted_and_each_trial_reproduces_as_it_ran(tmp_path, capsys):
+    """The reproduce line used to be built from the latest command line: after a rerun with another budget it
+    named that budget, not the one the best trial had trained with."""
+    path = write_sweep(tmp_path, n_trials=1, timesteps=128)
+    assert run_in_process(sweep_args(tmp_path, path, "tracking.enabled=false")) == 0
+    capsys.readouterr()
+    rerun = ("sweep.n_trials=2", "sweep.timesteps=64", "tracking.enabled=false")
+    assert run_in_process(sweep_args(tmp_path, path, *rerun, out="again")) == 0
+    out, err = capsys.readouterr()
+    assert "ran its earlier trials with train.total_timesteps=128" in err and "train.total_timesteps=64" in err
+    study = load_study(tmp_path)
+    ran = {t.number: t.user_attrs["overrides"] for t in study.trials}
+    assert "train.total_timesteps=128" in ran[0] and "train.total_timesteps=64" in ran[1]
+    best = study.best_trial
+    line = out.split("reproduce:\n", 1)[1].splitlines()[0]
+    assert f"train.total_timesteps={128 if best.number == 0 else 64}" in line
+    # whichever is best: the first trial's line names its own budget under the rerun's plan
+    import dataclasses
+
+    from diana_lab.sweeps.report import reproduce_command
+
+    spec = dataclasses.replace(load_spec(str(path)), timesteps=64)  # the rerun's budget
+    plan = TrialPlan(spec=spec, params=spec.params, cli=(), seeds=(), out_dir=tmp_path, study_name="tiny")
+    assert "train.total_timesteps=64" in " ".join(plan.overrides({}))
+    assert "train.total_timesteps=128" in reproduce_command(plan, study.trials[0])
 
 
 class PruneAll(BasePruner):
