@@ -257,6 +257,11 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
     dead = fail_dead_trials(study)
     if dead:
         print(f"note: trial(s) {dead} were left RUNNING by a killed worker: marked FAIL", file=sys.stderr)
+    done = len(study.get_trials(deepcopy=False))
+    if settings.sampler_seed is not None and done:
+        # a rerun continues the seeded sequence instead of restarting it (which proposed the first trials' points
+        # again): still a function of the seed and of the study, so the same rerun gives the same points
+        study.sampler = make_sampler(settings.sampler, (settings.sampler_seed + done) % 2**32)
 
     commit = git_commit()
     tags = {

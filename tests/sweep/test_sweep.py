@@ -198,3 +198,19 @@ def test_with_several_seeds_the_reproduce_line_is_a_multirun_over_them(tmp_path)
     one = reproduce_command(plan((3,)), trial).split()
     assert "-m" not in one[3:] and one[-1] == "seed=3"
     assert not any(a.startswith("seed=") for a in reproduce_command(plan(()), trial).split())
+
+
+def test_a_seeded_sampler_goes_on_after_a_rerun_and_repeats_it_exactly(tmp_path):
+    """A rerun restarted the seeded sequence: its first trial proposed the first trial's points again."""
+
+    def study_of(directory):
+        directory.mkdir()
+        path = write_sweep(directory, n_trials=1, timesteps=64)
+        seeded = ("sweep.sampler=random", "sweep.sampler_seed=3", "tracking.enabled=false")
+        assert run_in_process(sweep_args(directory, path, *seeded)) == 0
+        assert run_in_process(sweep_args(directory, path, *seeded, "sweep.n_trials=2", out="again")) == 0
+        return [t.params for t in load_study(directory).trials]
+
+    first = study_of(tmp_path / "a")
+    assert len(first) == 2 and first[1] != first[0]
+    assert study_of(tmp_path / "b") == first  # same seed, same reruns: same points
