@@ -38,6 +38,16 @@ def _axes(ax: Axes | None, size: tuple[float, float]) -> tuple[Figure, Axes]:
     return fig, fig.add_subplot()
 
 
+OUTSIDE_LEGEND_FROM = 5  # groups: from this many the legend goes beside the axes, where it covers no data
+
+
+def _legend(ax: Axes, groups: int) -> None:
+    if groups >= OUTSIDE_LEGEND_FROM:
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+    else:
+        ax.legend(fontsize=8, loc="best")
+
+
 def plot_learning_curves(curves: pd.DataFrame, metric: str, ax: Axes | None = None) -> Figure:
     """One line per group of :func:`~diana_lab.comparison.groups.learning_curves` for ``metric``: the mean
     over its runs, a band of +-1 standard deviation where two or more runs were evaluated."""
@@ -58,7 +68,7 @@ def plot_learning_curves(curves: pd.DataFrame, metric: str, ax: Axes | None = No
         ax.set_ylim(-0.03, 1.03)
     ax.grid(alpha=0.3)
     if len(data):
-        ax.legend(fontsize=8, loc="best")
+        _legend(ax, data["group"].nunique())
     else:
         ax.text(0.5, 0.5, f"no history of {metric}", ha="center", va="center", transform=ax.transAxes)
     ax.set_title(f"{metric} during training (mean ± std over seeds)")
@@ -80,5 +90,5 @@ def plot_final_metrics(groups: pd.DataFrame, metrics: Sequence[str], ax: Axes | 
     ax.set_ylabel("final value (mean ± std over seeds)")
     ax.grid(axis="y", alpha=0.3)
     if len(groups):
-        ax.legend(fontsize=8)
+        _legend(ax, len(groups))
     return fig

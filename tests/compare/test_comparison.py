@@ -173,3 +173,20 @@ def test_configs_that_differ_beyond_the_label_are_never_one_group():
     assert g.loc[5, "group"] != g.loc[6, "group"]
     # the labels of configs the first three values do not tell apart name what does
     assert "d=2" in g.loc[3, "group"] and "e=2" in g.loc[4, "group"]
+
+
+def test_with_many_groups_the_bar_legend_covers_no_bar(tmp_path):
+    from diana_lab.comparison.plots import plot_final_metrics, save_figure
+
+    groups = pd.DataFrame(
+        [
+            {"group": f"algo.learning_rate={i}e-4, algo.n_steps={64 * i}", "eval_spl_mean": 0.9, "eval_spl_std": 0.05}
+            for i in range(1, 10)
+        ]
+    )
+    fig = plot_final_metrics(groups, ["eval_spl"])
+    save_figure(fig, tmp_path / "bars.png")  # lays the figure out
+    (ax,) = fig.axes
+    renderer = fig.canvas.get_renderer()
+    legend, plot_area = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
+    assert legend.x0 >= plot_area.x1  # beside the axes, not over the bars (they reach 0.95 of the height)
