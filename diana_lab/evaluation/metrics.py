@@ -148,6 +148,7 @@ def summarize(df: pd.DataFrame, min_goal_speed: float = MIN_GOAL_SPEED) -> dict[
 
     rate("success_rate", success)
     mean("spl", spl(success, df["shortest_path_m"].to_numpy(), df["path_length_m"].to_numpy()) if n else [])
+    out["spl_ci95"] = [min(max(v, 0.0), 1.0) if math.isfinite(v) else v for v in out["spl_ci95"]]  # SPL is in [0, 1]
     outcome = df["outcome"].to_numpy(dtype=object)
     for key, name in RATE_OUTCOMES.items():
         rate(key, outcome == name)
@@ -167,8 +168,21 @@ def summarize(df: pd.DataFrame, min_goal_speed: float = MIN_GOAL_SPEED) -> dict[
         if column in df:
             count = int(df[column].sum())
             out[key] = count / steps if steps else math.nan
-            out[f"{key}_ci95"] = list(wilson(count, steps))
+            out[f"{key}_ci95"] = list(_step_rate_ci(df[column].to_numpy(), df["steps"].to_numpy()))
     return {k: _plain(v) for k, v in out.items()}
+
+
+def _step_rate_ci(counts: np.ndarray, steps: np.ndarray) -> tuple[float, float]:
+    """95 % interval of a share of all steps from per-episode counts: the hull of the ratio interval over
+    episodes (a rover's decisions cluster: one episode stuck at a wall makes most of a suite's detours, and a
+    binomial over steps alone is then far too narrow) and the Wilson interval over steps (which stays sensible
+    where the ratio's collapses: no event in any episode, or a single episode)."""
+    total, n = int(np.sum(counts)), int(np.sum(steps))
+    w_lo, w_hi = wilson(total, n)
+    _, (r_lo, r_hi) = ratio_ci(counts, steps)
+    if not (math.isfinite(r_lo) and math.isfinite(r_hi)):
+        return w_lo, w_hi
+    return min(w_lo, r_lo), max(w_hi, r_hi)
 
 
 def _plain(v: Any) -> Any:

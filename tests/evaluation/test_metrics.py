@@ -113,3 +113,26 @@ def test_slow_successes_count_the_successes_under_the_minimum_goal_speed_and_onl
     assert summarize(df, min_goal_speed=0.1)["slow_successes"] == 2
     assert summarize(df, min_goal_speed=0.0)["slow_successes"] == 0
     assert MIN_GOAL_SPEED == EvalConfig().min_goal_speed == 0.083  # the paper's figure, one value in both places
+
+
+def test_the_spl_interval_stays_within_zero_and_one():
+    """A Student-t interval of few near-perfect episodes reached past 1 (an audit's 5 episodes: [0.805, 1.078])."""
+    df = rows(outcome=["success"] * 4 + ["timeout"], path_length_m=[10.0, 10.0, 10.2, 11.0, 30.0])
+    lo, hi = summarize(df)["spl_ci95"]
+    raw = mean_ci(spl(df["success"], df["shortest_path_m"], df["path_length_m"]))[1]
+    assert raw[1] > 1.0 and hi == 1.0 and lo == pytest.approx(raw[0])
+
+
+def test_a_per_step_rate_interval_counts_episodes_not_only_steps():
+    """Vetoes that all fall in one episode of ten are one event of the suite, not 30 of 300 independent steps:
+    the interval must be wider than the binomial's over steps, and never narrower where no event happened."""
+    clustered = rows(outcome=["success"] * 10, steps=[30] * 10, shield_vetoes=[30] + [0] * 9)
+    s = summarize(clustered)
+    binomial = wilson(30, 300)
+    lo, hi = s["shield_veto_rate_ci95"]
+    assert s["shield_veto_rate"] == pytest.approx(0.1)
+    assert lo < binomial[0] and hi > binomial[1]  # 0.1 could be 0 or 0.3 from another ten episodes
+    spread = rows(outcome=["success"] * 10, steps=[30] * 10, shield_vetoes=[3] * 10)
+    assert summarize(spread)["shield_veto_rate_ci95"] == pytest.approx(list(binomial))  # no clustering: Wilson
+    none = rows(outcome=["success"] * 10, steps=[30] * 10, shield_vetoes=[0] * 10)
+    assert summarize(none)["shield_veto_rate_ci95"] == pytest.approx(list(wilson(0, 300)))
