@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from omegaconf import MISSING
 
@@ -17,11 +18,17 @@ class WorldConfig:
 
     _target_: str = MISSING
     name: str = MISSING
-    seed: int = 0
+    seed: int = 0  # procedural worlds only (PROCEDURAL); the others refuse another value than 0
     obstacle_resolution: float = 0.1
+    PROCEDURAL: ClassVar[bool] = False  # drawn from world.seed
 
     def __post_init__(self) -> None:
         check_seed("world.seed", self.seed)
+        if self.seed and not self.PROCEDURAL:  # it would change nothing, silently
+            raise ConfigError(
+                f"world.seed={self.seed}: world={self.name} is not procedural, so a seed changes nothing; "
+                "leave it at 0 (world=hills and world=craters are drawn from it)"
+            )
         positive("world.obstacle_resolution", self.obstacle_resolution)
 
 
@@ -50,6 +57,7 @@ class FlatConfig(WorldConfig):
 
 @dataclass
 class HillsConfig(FlatConfig):
+    PROCEDURAL: ClassVar[bool] = True
     _target_: str = "diana_lab.sim.worlds.hills"
     name: str = "hills"
     max_slope_deg: float = 8.0
@@ -65,6 +73,7 @@ class HillsConfig(FlatConfig):
 
 @dataclass
 class CratersConfig(FlatConfig):
+    PROCEDURAL: ClassVar[bool] = True
     _target_: str = "diana_lab.sim.worlds.craters"
     name: str = "craters"
     size_x: float = 50.0

@@ -368,8 +368,9 @@ def imitate(
         }
         result.history.append(row)
         tracker.log_metrics({f"imitation/{k}": v for k, v in row.items() if math.isfinite(v)}, it)
+        cost = f"cost loss {cost_loss:.4f}, " if math.isfinite(cost_loss) else ""  # only with the cost loss on
         print(
-            f"imitation {it + 1}/{cfg.iterations}: beta {beta:.3f}, loss {loss:.4f}, cost loss {cost_loss:.4f}, "
+            f"imitation {it + 1}/{cfg.iterations}: beta {beta:.3f}, loss {loss:.4f}, {cost}"
             f"{data.size} labels, "
             f"{episodes} episodes ({row['success_rate']:.0%} success, {row['learner_fraction']:.0%} learner steps)",
             file=sys.stderr,
@@ -380,5 +381,11 @@ def imitate(
     if cfg.log_std is not None and isinstance(log_std, torch.nn.Parameter):
         with torch.no_grad():
             log_std.fill_(cfg.log_std)
+    elif cfg.log_std is not None and isinstance(venv.action_space, gym.spaces.Box):
+        print(
+            f"note: train.imitation.log_std={cfg.log_std} is not applied: {type(model).__name__}'s policy has no "
+            "state-independent log std (it applies to PPO/A2C Gaussian policies)",
+            file=sys.stderr,
+        )
     result.wall_time_s = time.perf_counter() - t0
     return result

@@ -109,6 +109,7 @@ ROWS = [
     Bad("evaluate-negative-suite-seed", EVAL, ("policy=straight", "eval.seed=-5"), ("eval.seed", "2**32 - 1", "-5")),
     Bad("train-negative-suite-seed", TRAIN, ("eval.seed=-5",), ("eval.seed", "2**32 - 1")),
     Bad("negative-world-seed", EVAL, ("policy=straight", "world=craters", "world.seed=-3"), ("world.seed", "-3")),
+    Bad("seed-of-a-fixed-world", EVAL, ("policy=straight", "world.seed=5"), ("world.seed=5", "not procedural")),
     Bad("run-dir-under-a-file", TRAIN, ("hydra.run.dir={files}/afile/run",), ("hydra.run.dir", "afile", "file")),
     # ---- need the world, env or training stack built (seconds each): slow
     Bad(

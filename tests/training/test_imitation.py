@@ -140,7 +140,7 @@ def test_imitated_policy_drives_to_the_goal_on_flat_ground():
     venv.close()
 
 
-def test_runner_logs_the_imitation_stage(tmp_path):
+def test_runner_logs_the_imitation_stage(tmp_path, capsys):
     args = [
         "algo=ppo",
         *TINY,
@@ -151,6 +151,8 @@ def test_runner_logs_the_imitation_stage(tmp_path):
         *store_args(tmp_path),
     ]
     assert run_in_process(args) == 0
+    err = capsys.readouterr().err
+    assert "imitation 2/2: beta" in err and "cost loss" not in err  # printed only with the cost loss on (was nan)
     client, (run,) = runs(tmp_path)
     assert run.info.status == "FINISHED" and run.data.tags["imitation_steps"] == "128"
     loss = client.get_metric_history(run.info.run_id, "imitation/loss")
@@ -272,3 +274,22 @@ def test_cost_labels_need_the_cost_to_go_encoder():
     with pytest.raises(ConfigError, match="elevation_encoder=cost_to_go"):
         imitate(model, venv, cfg, seed=0, tracker=Tracker())
     venv.close()
+
+
+def test_an_off_policy_actor_says_the_log_std_is_not_applied(tmp_path, capsys):
+    """SAC's actor has no state-independent log std: ``train.imitation.log_std`` used to be skipped silently."""
+    args = [
+        "algo=sac",
+        *TINY,
+        *ALGO_TINY["sac"],
+        "train.total_timesteps=128",
+        "train.imitation.enabled=true",
+        "train.imitation.iterations=1",
+        "train.imitation.steps_per_iteration=64",
+        "tracking.enabled=false",
+        f"hydra.run.dir={tmp_path}/run",
+    ]
+    assert run_in_process(args) == 0
+    assert "train.imitation.log_std=-1.5 is not applied: SAC's policy has no state-independent log std" in (
+        capsys.readouterr().err
+    )
