@@ -254,12 +254,8 @@ class TrainingRun:
     # ------------------------------------------------------------------ phases
     def learn(self) -> None:
         assert self.model is not None
+        # > 0: a resumed model's spent budget was refused before its run reopened (_check_budget_left)
         remaining = self.train_cfg.total_timesteps - self.model.num_timesteps
-        if remaining <= 0:
-            raise UserError(
-                f"train.total_timesteps={self.train_cfg.total_timesteps}: the resumed model has already "
-                f"trained {self.model.num_timesteps} steps; set a larger total to continue"
-            )
         callbacks = self.callbacks()
         if self.resume is None and self.train_cfg.imitation.enabled:
             self.imitation = imitate(self.model, self.venv, self.train_cfg.imitation, self.seed, self.tracker)
