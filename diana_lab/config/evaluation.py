@@ -141,6 +141,11 @@ class ShieldConfig:
     slope_cost_weight: float = 0.0
     slope_cost_from_deg: float = 15.0
     slope_cost_to_deg: float = 22.0
+    # m: a map of the site made before the drive (an orbital elevation model, a competition yard's survey): the
+    # world's ground averaged over squares this wide, whose slope the search (the detour's and the route rule's)
+    # reads where the shield's own map has seen nothing, instead of taking that ground as flat and drivable
+    # (diana_lab.shield.site_map; needs detour_after > 0 or route); 0: no site map
+    site_map_cell: float = 0.0
     # depth cameras that feed only the shield's map (ShieldCameraConfig); []: the env sensor's returns alone
     cameras: list[ShieldCameraConfig] = field(default_factory=list)
 
@@ -171,6 +176,12 @@ class ShieldConfig:
         if not isinstance(self.route, bool):
             raise ConfigError(f"eval.shield.route: expected true or false, got {self.route!r}")
         non_negative("eval.shield.route_tolerance", self.route_tolerance)
+        non_negative("eval.shield.site_map_cell", self.site_map_cell)
+        if self.site_map_cell > 0 and not (self.detour_after > 0 or self.route):
+            raise ConfigError(
+                f"eval.shield.site_map_cell={self.site_map_cell}: the site map is read by the shield's search, which "
+                "runs only with eval.shield.detour_after > 0 or eval.shield.route=true; set one, or 0 for no site map"
+            )
         non_negative("eval.shield.slope_cost_weight", self.slope_cost_weight)
         in_range("eval.shield.slope_cost_from_deg", self.slope_cost_from_deg, 0.0, 90.0, inclusive=False)
         in_range("eval.shield.slope_cost_to_deg", self.slope_cost_to_deg, 0.0, 90.0, inclusive=False)

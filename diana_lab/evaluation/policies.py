@@ -136,6 +136,7 @@ class ShieldedPolicy:
         self.cameras: Any = None  # the hazard cameras (ShieldCameras), built on the first reset of a world
         self._episode = -1  # episodes reset so far, less one: the cameras' noise seed
         self._before: dict[str, int] = {}  # the shield's counters at the episode's start
+        self._site: tuple[Any, Any] | None = None  # (world, its SiteMap) with eval.shield.site_map_cell
 
     @property
     def name(self) -> str:
@@ -157,6 +158,8 @@ class ShieldedPolicy:
         if self.shield is None:
             self.shield = SlopeShield(ShieldSettings.from_config(self.cfg, env.unwrapped.robot))
         self.shield.reset()
+        if self.cfg.site_map_cell > 0:
+            self.shield.use_site_map(self._site_map(env.unwrapped.world))
         self._before = self._counters()
         self._episode += 1
         if self.cfg.cameras:
@@ -166,6 +169,14 @@ class ShieldedPolicy:
 
                 self.cameras = ShieldCameras(self.cfg.cameras, base.sensor.cfg, base.world)
             self.cameras.reset(np.random.default_rng([self.seed, self._episode]))
+
+    def _site_map(self, world: Any) -> Any:
+        """The site map of ``world`` (``eval.shield.site_map_cell``), built once per world."""
+        if self._site is None or self._site[0] is not world:
+            from diana_lab.shield.site_map import SiteMap
+
+            self._site = (world, SiteMap.from_terrain(world.terrain, float(self.cfg.site_map_cell)))
+        return self._site[1]
 
     def _counters(self) -> dict[str, int]:
         """The shield's running counters (over the suite) under their column names."""

@@ -9,11 +9,14 @@ code as the simulator's evaluation:
   among the policy's candidates (the place rule, fallback, final approach, detour and route rule);
 * :mod:`~diana_lab.shield.relief`: the relief check (slope, steps and roughness under the footprint);
 * :mod:`~diana_lab.shield.detour`: the detour and the route rule, a least-cost search over the shield's map;
+* :mod:`~diana_lab.shield.site_map`: :class:`SiteMap`, a map of the site made before the drive, which the search
+  reads where the shield's map has seen nothing;
 * :mod:`~diana_lab.shield.grid_search`: that search (numba), which the A* experts share.
 """
 
 from diana_lab.shield.detour import Detour, SlopeCost
 from diana_lab.shield.settings import ShieldSettings
+from diana_lab.shield.site_map import SiteMap
 from diana_lab.shield.slope_shield import VETO_CHECKS, SlopeShield
 
-__all__ = ["VETO_CHECKS", "Detour", "ShieldSettings", "SlopeCost", "SlopeShield"]
+__all__ = ["VETO_CHECKS", "Detour", "ShieldSettings", "SiteMap", "SlopeCost", "SlopeShield"]

@@ -42,6 +42,12 @@ within ``tolerance`` metres of the least is driven (one ending away from the pla
 policy still chooses, but among the ways to the goal its map shows. With the hazard cameras' map and the slope
 cost, the physics validation suites went from 0.87 / 0.89 / 0.80 to 0.96 / 0.93 / 0.90 (docs/reference_policy.md,
 "Route rule").
+
+The site map (:attr:`Detour.site_map`, :class:`~diana_lab.shield.site_map.SiteMap`; the shield's
+``site_map_cell``): where the shield's map gives no slope (a cell or a neighbour unseen), the search takes the
+site map's, for the slope rule and the slope cost alike, instead of taking the ground as flat and drivable.
+Behind ``+experiment=reference_hazcams`` the reported yard suite's slowest success went from 0.058 to 0.11 m/s
+(docs/reference_policy.md, "Site map").
 """
 
 from __future__ import annotations
@@ -55,6 +61,7 @@ import numpy as np
 
 from diana_lab.height_memory import HeightMemory
 from diana_lab.shield.relief import ReliefLimits, relief_hazards
+from diana_lab.shield.site_map import SiteMap
 
 __all__ = ["GOAL_CLEARANCE", "Detour", "SlopeCost"]
 
@@ -133,6 +140,7 @@ class Detour:
         self.relief = relief
         self.slope_cost = slope_cost if slope_cost is not None and slope_cost.weight > 0 else None
         self.search = _cost_to_go()
+        self.site_map: SiteMap | None = None  # what the search assumes of unseen ground (None: drivable, flat)
         self.reset()
 
     def reset(self) -> None:
@@ -154,9 +162,10 @@ class Detour:
 
     def traversable(self, memory: HeightMemory, box: tuple[int, int, int, int]) -> np.ndarray:
         """Whether each cell of ``memory`` in ``box`` (``ix0, iy0, ix1, iy1``, end-exclusive) is drivable by the
-        slope rule (module docstring), ``(iy1 - iy0, ix1 - ix0)`` bool; unseen cells are."""
+        slope rule (module docstring), ``(iy1 - iy0, ix1 - ix0)`` bool; unseen cells are, unless the site map
+        (:attr:`site_map`) puts them over the limit."""
         n = memory.n
-        gx, gy = _gradient(memory.height.reshape(n, n), box, memory.cell_size)
+        gx, gy = self._gradient(memory, memory.height, box)
         along_axes = np.maximum(np.abs(gx), np.abs(gy))  # headings 0 and 90 degrees: pitch and roll
         diagonal = np.maximum(np.abs(gx + gy), np.abs(gx - gy)) / math.sqrt(2.0)  # 45 and 135 degrees
         with np.errstate(invalid="ignore"):
@@ -164,6 +173,23 @@ class Detour:
         if self.relief is not None and memory.mean_height is not None:
             free &= ~relief_hazards(memory.mean_height.reshape(n, n), box, memory.cell_size, self.relief)
         return free
+
+    def _gradient(
+        self, memory: HeightMemory, layer: np.ndarray, box: tuple[int, int, int, int]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The gradient of ``layer`` (a ``memory`` layer) in ``box``, and where the map cannot give one (a cell or
+        a neighbour unseen), the site map's (:mod:`diana_lab.shield.site_map`), when there is one."""
+        n = memory.n
+        gx, gy = _gradient(layer.reshape(n, n), box, memory.cell_size)
+        if self.site_map is not None:
+            ix0, iy0, ix1, iy1 = box
+            xs = memory.origin[0] + (np.arange(ix0, ix1) + 0.5) * memory.cell_size
+            ys = memory.origin[1] + (np.arange(iy0, iy1) + 0.5) * memory.cell_size
+            unseen = np.isnan(gx) | np.isnan(gy)
+            iy, ix = np.nonzero(unseen)
+            sx, sy = self.site_map.gradient_at(xs[ix], ys[iy])
+            gx[unseen], gy[unseen] = sx, sy
+        return gx, gy
 
     def costs_to_go(
         self,
@@ -191,7 +217,7 @@ class Detour:
         cost = np.where(free.reshape(ny, p, nx, p).all(axis=(1, 3)), 1.0, np.inf)
         if self.slope_cost is not None:  # a search cell costs as its steepest map cell
             layer = memory.mean_height if memory.mean_height is not None else memory.height
-            gx, gy = _gradient(layer.reshape(n, n), box, memory.cell_size)
+            gx, gy = self._gradient(memory, layer, box)
             with np.errstate(invalid="ignore"):
                 slope = np.degrees(np.arctan(np.hypot(gx, gy)))
             cost = cost * self.slope_cost.factor(slope).reshape(ny, p, nx, p).max(axis=(1, 3))

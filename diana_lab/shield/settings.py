@@ -67,6 +67,9 @@ class ShieldSettings:
     )
     slope_cost_from_deg: float = 15.0
     slope_cost_to_deg: float = 22.0
+    # m: the site map's cells the search was evaluated with (diana_lab.shield.site_map); 0: none (older sidecars).
+    # Onboard the Navigator is handed the map itself; this says one is expected.
+    site_map_cell: float = 0.0
 
     @classmethod
     def from_config(cls, cfg: ShieldConfig, robot: RobotConfig) -> ShieldSettings:
@@ -105,6 +108,7 @@ class ShieldSettings:
             slope_cost_weight=float(cfg.slope_cost_weight),
             slope_cost_from_deg=float(cfg.slope_cost_from_deg),
             slope_cost_to_deg=float(cfg.slope_cost_to_deg),
+            site_map_cell=float(cfg.site_map_cell),
         )
 
     @classmethod
@@ -161,6 +165,11 @@ class ShieldSettings:
         if not self.relief_unseen_from >= 0:
             raise ValueError(
                 f"ShieldSettings: expected relief_unseen_from >= 0 m (0: off), got {self.relief_unseen_from}"
+            )
+        if not self.site_map_cell >= 0 or (self.site_map_cell > 0 and not (self.detour_after > 0 or self.route)):
+            raise ValueError(
+                "ShieldSettings: expected site_map_cell >= 0 m and, with it, a search to read the map (detour_after "
+                f"> 0 or route), got {self.site_map_cell}, {self.detour_after}, {self.route}"
             )
         if not self.route_tolerance >= 0:
             raise ValueError(f"ShieldSettings: expected route_tolerance >= 0 m, got {self.route_tolerance}")

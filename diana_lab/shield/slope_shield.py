@@ -95,6 +95,7 @@ from diana_lab.rotations import leveling_matrix
 from diana_lab.shield.detour import Detour
 from diana_lab.shield.relief import ReliefLimits, relief_judgement
 from diana_lab.shield.settings import ShieldSettings
+from diana_lab.shield.site_map import SiteMap
 
 __all__ = ["VETO_CHECKS", "ShieldSettings", "SlopeShield"]
 
@@ -176,6 +177,18 @@ class SlopeShield:
             self.detour.reset()
         self.hazards = np.zeros((0, 2))
         self._stood = np.zeros((0, 2))
+
+    def use_site_map(self, site_map: SiteMap | None) -> None:
+        """Let the search (the detour's and the route rule's) read ``site_map`` where this map has seen nothing
+        (:mod:`diana_lab.shield.site_map`; None: unseen ground is drivable again). Kept across :meth:`reset`: it
+        is the site's, not the traverse's."""
+        if site_map is not None and self.detour is None:
+            raise ValueError(
+                "SlopeShield.use_site_map: this shield has no search to read a site map (its settings have "
+                "detour_after 0 and route false)"
+            )
+        if self.detour is not None:
+            self.detour.site_map = site_map
 
     def mark_hazard(self, xy: Sequence[float] | None) -> None:
         """Remember where the wheels met ground they could not drive (``None``: nothing to remember); kept only
