@@ -212,9 +212,11 @@ def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
         source,
         shield,
     )
+    site_cell = float(spec.shield.get("site_map_cell", 0.0)) if spec.shield is not None else 0.0
+    site = f", site_map=SiteMap(heights, origin, {site_cell:g})" if site_cell > 0 else ""
     print(
         f"wrote {out} ({out.stat().st_size / 1024:.0f} kB) and {sidecar_path(out)}: {spec.encoding.name} "
         f"{spec.encoding.shape} from a {spec.sensor.type}, {spec.action_space.shape} action space "
-        f"({spec.action_space.frame} frame); load with diana_lab.deploy.Navigator.from_files('{out}')"
+        f"({spec.action_space.frame} frame); load with diana_lab.deploy.Navigator.from_files('{out}'{site})"
     )
     return spec

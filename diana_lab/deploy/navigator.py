@@ -24,7 +24,7 @@ from diana_lab.candidates import candidate_offsets, turned
 from diana_lab.deploy.encoding import CloudEncoder, make_cloud_encoder
 from diana_lab.deploy.inputs import Pose, check_cloud, check_goal, goal_vector
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
-from diana_lab.shield import ShieldSettings, SlopeShield
+from diana_lab.shield import ShieldSettings, SiteMap, SlopeShield
 
 __all__ = ["Navigator", "session_options"]
 
@@ -47,7 +47,12 @@ class Navigator:
     """An exported policy with its sidecar. Build with :meth:`from_files`; call :meth:`next_waypoint`."""
 
     def __init__(
-        self, spec: PolicySpec, model_path: str | Path, threads: int = 1, providers: list[str] | None = None
+        self,
+        spec: PolicySpec,
+        model_path: str | Path,
+        threads: int = 1,
+        providers: list[str] | None = None,
+        site_map: SiteMap | None = None,
     ) -> None:
         self.spec = spec
         self.model_path = Path(model_path)
@@ -67,6 +72,7 @@ class Navigator:
             act = spec.action_space
             self._candidates = candidate_offsets(int(act.headings), tuple(act.distances))  # type: ignore[arg-type]
             self._candidates32 = self._candidates.astype(np.float32)  # the graph's own table (its offsets)
+        self._use_site_map(site_map)
 
     @classmethod
     def from_files(
@@ -75,13 +81,37 @@ class Navigator:
         sidecar: str | Path | None = None,
         threads: int = 1,
         providers: list[str] | None = None,
+        site_map: SiteMap | None = None,
     ) -> Navigator:
-        """Load ``policy.onnx`` and its sidecar (``policy.json`` next to it unless ``sidecar`` is given)."""
+        """Load ``policy.onnx`` and its sidecar (``policy.json`` next to it unless ``sidecar`` is given); a
+        ``site_map`` for a policy evaluated with one (see :meth:`_use_site_map`)."""
         onnx_path = Path(onnx_path)
         if not onnx_path.is_file():
             raise FileNotFoundError(f"onnx_path: no such file '{onnx_path}'")
         spec = PolicySpec.load(sidecar if sidecar is not None else sidecar_path(onnx_path))
-        return cls(spec, onnx_path, threads, providers)
+        return cls(spec, onnx_path, threads, providers, site_map)
+
+    def _use_site_map(self, site_map: SiteMap | None) -> None:
+        """Hand the shield's search the site map (:mod:`diana_lab.shield.site_map`, in the pose estimate's frame).
+        A policy evaluated with one (the sidecar's ``shield.site_map_cell`` > 0) needs one: without it the search
+        takes unseen ground as drivable and the rover no longer drives as evaluated."""
+        expected = float(self.spec.shield.get("site_map_cell", 0.0)) if self.spec.shield is not None else 0.0
+        if site_map is None:
+            if expected > 0:
+                raise ValueError(
+                    f"site_map: this policy's shield was evaluated with a site map of {expected:g} m cells "
+                    "(shield.site_map_cell in its sidecar); pass site_map=SiteMap(heights, origin, cell) with the "
+                    "site's elevation model (docs/deploy.md)"
+                )
+            return
+        if not isinstance(site_map, SiteMap):
+            raise ValueError(f"site_map: expected a diana_lab.shield.SiteMap, got {type(site_map).__name__}")
+        if self.shield is None or self.shield.detour is None:
+            raise ValueError(
+                "site_map: this policy's sidecar has no shield search to read it (a slope shield with detour_after "
+                "> 0 or route)"
+            )
+        self.shield.use_site_map(site_map)
 
     def _check_graph(self) -> None:
         got = {i.name: list(i.shape) for i in self.session.get_inputs()}

@@ -44,15 +44,15 @@ def replay(nav: Navigator, rec) -> dict[str, float]:
     return err
 
 
-def shielded_replay(tmp_path, small_world, overrides, shield, n: int):
+def shielded_replay(tmp_path, small_world, overrides, shield, n: int, site_map=None):
     """Train and export a run with ``overrides`` evaluated behind ``shield`` (its ``eval.shield.*`` overrides),
-    record ``n`` of the simulator's shielded decisions and replay them through the runtime: the simulator's
-    policy, the runtime, the recording and the largest differences."""
+    record ``n`` of the simulator's shielded decisions and replay them through the runtime (handed ``site_map``):
+    the simulator's policy, the runtime, the recording and the largest differences."""
     run = export_run(tmp_path / "run", run_config(*overrides), small_world, True, *shield)
     try:
         policy = run.loaded.policy
         rec = record(run.env, policy, n, seed=2)
-        nav = Navigator.from_files(run.onnx)
+        nav = Navigator.from_files(run.onnx, site_map=site_map)
         return policy, nav, rec, replay(nav, rec)
     finally:
         run.env.close()
@@ -261,6 +261,44 @@ def test_with_the_route_rule_the_runtime_drives_like_the_simulator(tmp_path, sma
     assert nav.spec.shield["slope_cost_weight"] == 10.0
     assert nav.shield.routes == policy.shield.routes > 5  # the rule turned from the policy, the same times
     assert err["waypoint"] <= TOLERANCE_M
+
+
+def test_with_a_site_map_the_runtime_drives_like_the_simulator(tmp_path, small_world):
+    """``eval.shield.site_map_cell``: the simulator's search reads the world's site map where its map has seen
+    nothing; onboard the Navigator is handed the same map (``site_map=``) and drives alike. Handed a flat map
+    instead, it drives otherwise (the map is used), and handed none it refuses to start."""
+    from diana_lab.shield import SiteMap
+
+    shield = [
+        "eval.shield.enabled=true",
+        "eval.shield.radius=20",
+        "eval.shield.limit_deg=8",  # strict on this small world: walls for the search, seen or not
+        "eval.shield.route=true",
+        "eval.shield.route_tolerance=0.5",
+        "eval.shield.site_map_cell=0.25",
+    ]
+    site = SiteMap.from_terrain(small_world.terrain, 0.25)
+    policy, nav, rec, err = shielded_replay(tmp_path, small_world, SHIELDED_RUN, shield, 120, site_map=site)
+    print(f"site-map parity over 120 decisions: {err}; routes {policy.shield.routes}")
+    assert nav.spec.shield["site_map_cell"] == 0.25
+    assert policy.shield.detour.site_map is not None
+    assert np.array_equal(policy.shield.detour.site_map.heights, site.heights)
+    assert nav.shield.routes == policy.shield.routes > 5
+    assert err["waypoint"] <= TOLERANCE_M
+    flat = SiteMap(np.zeros_like(site.heights), site.origin, site.cell)
+    other = Navigator(nav.spec, nav.model_path, site_map=flat)
+    assert replay(other, rec)["waypoint"] > 0.5
+    with pytest.raises(ValueError, match=r"site_map: .*site_map_cell"):
+        Navigator(nav.spec, nav.model_path)
+    with pytest.raises(ValueError, match=r"site_map: expected a diana_lab\.shield\.SiteMap"):
+        Navigator(nav.spec, nav.model_path, site_map=site.heights)
+
+
+def test_a_site_map_for_a_policy_without_a_shield_search_is_refused(depth_run):
+    from diana_lab.shield import SiteMap
+
+    with pytest.raises(ValueError, match=r"site_map: .*no shield search"):
+        Navigator.from_files(depth_run.onnx, site_map=SiteMap(np.zeros((3, 3)), (0, 0), 1.0))
 
 
 def test_map_for_shield_needs_a_shield_and_a_camera_position(depth_run):
