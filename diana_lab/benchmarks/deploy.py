@@ -26,7 +26,7 @@ import numpy as np
 
 from diana_lab.benchmarks.core import BenchContext, Figure, Target, figure_from_samples, measurement, repeat
 
-__all__ = ["detour_latency", "hazcam_latency", "policy_latency"]
+__all__ = ["detour_latency", "hazcam_latency", "policy_latency", "sitemap_latency"]
 
 KEYS = ("policy_latency_ms_p50", "policy_latency_ms_p99")
 TARGETS = {"policy_latency_ms_p50": Target("<=", 1.0), "policy_latency_ms_p99": Target("<=", 2.0)}
@@ -34,6 +34,7 @@ DETOUR_KEYS = ("shield_detour_ms_p50", "shield_detour_ms_p99")
 DETOUR_GOAL_M = 20.0  # the goal this far from each pose (the suite's goals lie 8..30 m away)
 DETOUR_SEEN_M = 30.0  # half-width of the square of true ground the shield's map holds around each pose
 HAZCAM_KEYS = ("hazcam_decision_ms_p50", "hazcam_decision_ms_p99")
+SITEMAP_KEYS = ("sitemap_decision_ms_p50", "sitemap_decision_ms_p99")
 MISSING_NOTE = "not measured: the deployment runtime (diana_lab.deploy, onnxruntime) is not installed"
 
 
@@ -61,9 +62,9 @@ def _p50_p99(
     ]
 
 
-def _reference_navigator(folder: Path, preset: str = "reference") -> Any:
+def _reference_navigator(folder: Path, preset: str = "reference", site_map: Any = None) -> Any:
     """Export the shipped reference policy behind the shield of ``+experiment=<preset>`` and load it as the rover
-    would (None when it is not shipped)."""
+    would, handed ``site_map`` (None when it is not shipped)."""
     from diana_lab.config import compose, to_object
     from diana_lab.deploy import Navigator
     from diana_lab.deploy.export import export_policy
@@ -91,7 +92,7 @@ def _reference_navigator(folder: Path, preset: str = "reference") -> Any:
         source={"label": "benchmark (shipped reference policy)"},
         shield=shield if eval_cfg.shield.enabled else None,
     )
-    return Navigator.from_files(path, threads=1)
+    return Navigator.from_files(path, threads=1, site_map=site_map)
 
 
 def _recipe_navigator(seed: int, folder: Path) -> Any:
@@ -224,22 +225,38 @@ def hazcam_latency(ctx: BenchContext) -> list[Figure]:
     are cast in the bench's world from its poses, each decision 0.3 m on from the last along the heading (eight
     a pose, the map growing as on a drive); the lidar cloud is the synthetic flat-ground one of
     ``policy_latency``. The figures are the medians over the repeats of each run's p50 and p99."""
+    return _camera_decisions(ctx, "reference_hazcams", HAZCAM_KEYS)
+
+
+@measurement(*SITEMAP_KEYS)
+def sitemap_latency(ctx: BenchContext) -> list[Figure]:
+    """As ``hazcam_latency``, behind ``+experiment=reference_sitemap``' shield: the Navigator is handed the bench
+    world's site map (``SiteMap.from_terrain`` at the preset's cell), which the route rule's search reads on every
+    decision where the cameras have seen nothing."""
+    return _camera_decisions(ctx, "reference_sitemap", SITEMAP_KEYS)
+
+
+def _camera_decisions(ctx: BenchContext, preset: str, keys: tuple[str, str]) -> list[Figure]:
+    """The decisions of ``hazcam_latency`` behind the shield of ``+experiment=<preset>`` (figures ``keys``)."""
     if importlib.util.find_spec("diana_lab.deploy") is None or importlib.util.find_spec("onnxruntime") is None:
-        return [Figure(key, "ms", None, note=MISSING_NOTE) for key in HAZCAM_KEYS]
+        return [Figure(key, "ms", None, note=MISSING_NOTE) for key in keys]
     import time
 
     from diana_lab.config import compose, to_object
     from diana_lab.deploy.latency import synthetic_cloud
     from diana_lab.evaluation.shield_cameras import ShieldCameras
+    from diana_lab.shield import SiteMap
 
-    cfg = compose(["+experiment=reference_hazcams"])
+    cfg = compose([f"+experiment={preset}"])
     eval_cfg = to_object("eval", cfg.eval)
     cameras = ShieldCameras(eval_cfg.shield.cameras, to_object("sensor", cfg.sensor), ctx.world)
     cameras.reset(np.random.default_rng(ctx.seed))
+    cell = eval_cfg.shield.site_map_cell
+    site = SiteMap.from_terrain(ctx.world.terrain, cell) if cell > 0 else None
     with tempfile.TemporaryDirectory(prefix="diana_bench_") as folder:
-        nav = _reference_navigator(Path(folder), "reference_hazcams")
+        nav = _reference_navigator(Path(folder), preset, site)
         if nav is None:
-            return [Figure(key, "ms", None, note="not measured: no reference policy shipped") for key in HAZCAM_KEYS]
+            return [Figure(key, "ms", None, note="not measured: no reference policy shipped") for key in keys]
         cloud = synthetic_cloud(nav.spec.sensor)
         cases = []
         for position, rpy in ctx.poses[: ctx.size(12, 4)]:
@@ -275,13 +292,15 @@ def hazcam_latency(ctx: BenchContext) -> list[Figure]:
             }
 
         runs = repeat(run, ctx.repeats)
+    with_site = ", the world's site map" if site is not None else ""
     note = (
         f"Navigator.map_for_shield x {len(cameras)} hazard-camera frames (median {runs[0]['points']:.0f} returns a "
-        f"decision) + Navigator.next_waypoint behind the +experiment=reference_hazcams shield (relief check and "
-        f"route rule on), onnxruntime 1 thread, frames cast in the bench's world; {runs[0]['n']} decisions a run"
+        f"decision) + Navigator.next_waypoint behind the +experiment={preset} shield (relief check and "
+        f"route rule on{with_site}), onnxruntime 1 thread, "
+        f"frames cast in the bench's world; {runs[0]['n']} decisions a run"
     )
     extra = {
         "returns_per_decision": runs[0]["points"],
         "map_for_shield_p50_ms": float(np.median([r["map_p50"] for r in runs])),
     }
-    return _p50_p99(HAZCAM_KEYS, runs, f"{runs[0]['n']} decisions", note, extra)
+    return _p50_p99(keys, runs, f"{runs[0]['n']} decisions", note, extra)

@@ -39,6 +39,7 @@ ORDER = (
     "policy_latency",
     "detour_latency",
     "hazcam_latency",
+    "sitemap_latency",
     "rss_per_env",
 )
 ANCHORS = {

@@ -36,6 +36,7 @@ DOCUMENTED = {
     "env_steps_per_s_kinematic", "env_steps_per_s_physics", "vec_env_scaling_2", "train_fps_ppo",
     "policy_latency_ms_p50", "policy_latency_ms_p99", "rss_mb_per_env", "expert_label_ms",
     "shield_detour_ms_p50", "shield_detour_ms_p99", "hazcam_decision_ms_p50", "hazcam_decision_ms_p99",
+    "sitemap_decision_ms_p50", "sitemap_decision_ms_p99",
 }  # fmt: skip
 
 
@@ -101,6 +102,13 @@ def test_the_hazard_camera_figure_times_decisions_that_map_four_camera_frames(tm
     assert 0 < p50["value"] <= p99["value"] and p50["batch"] == "32 decisions"
     assert "x 4 hazard-camera frames" in p50["note"] and p50["target"] is None
     assert p50["returns_per_decision"] > 10_000 and 0 < p50["map_for_shield_p50_ms"] < p50["value"]
+
+
+def test_the_site_map_figure_times_the_same_decisions_with_the_worlds_site_map(tmp_path):
+    p50, p99 = quick_pair(tmp_path, "sitemap_decision_ms_p50", "sitemap_decision_ms_p99")
+    assert 0 < p50["value"] <= p99["value"] and p50["batch"] == "32 decisions"
+    assert "+experiment=reference_sitemap" in p50["note"] and "site map" in p50["note"]
+    assert p50["returns_per_decision"] > 10_000
 
 
 def test_every_documented_key_is_registered_once():
