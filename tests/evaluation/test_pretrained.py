@@ -79,6 +79,14 @@ def test_the_card_holds_every_suite_with_every_rate():
         for rate in RATES:
             assert 0.0 <= result[rate] <= 1.0, (key, rate)
     assert c["training"]["wall_time_min"] > 0 and c["training"]["timesteps"] > 0
+    sitemap = c["results_reference_sitemap"]
+    for key in ("mars_yard", "mars_yard_physics", "mars_yard_noise", "craters_unseen"):
+        result = sitemap[key]
+        assert result["command"].startswith(
+            "python -m diana_lab.evaluate policy=pretrained +experiment=reference_sitemap"
+        )
+        for rate in RATES:
+            assert 0.0 <= result[rate] <= 1.0, (key, rate)
 
 
 def pretrained_summary(tmp_path, preset: str, *overrides: str) -> dict:
@@ -123,6 +131,19 @@ def test_the_hazard_camera_preset_clears_the_physics_bar_on_the_20_episode_physi
     assert got["episodes"] == 20
     assert got["success_rate"] >= 0.9
     assert got["shield_route_rate"] > 0.1  # the route rule, not the policy alone, chose many of the drives
+
+
+@pytest.mark.slow
+def test_with_the_site_map_no_success_of_the_first_35_goals_is_slow(tmp_path):
+    """``+experiment=reference_sitemap``: the first 35 goals of the reported suite hold the two that
+    ``reference_hazcams`` reaches under the issue's 0.083 m/s (episodes 21 and 34: 0.081 and 0.058 m/s, pockets
+    entered blind); with the site map's slopes for unseen ground the search plans round them (2026-11-25: the
+    100-episode suite's slowest success 0.11 m/s)."""
+    got = pretrained_summary(tmp_path, "reference_sitemap", "eval.episodes=35", "eval.plots=false")
+    print({k: got[k] for k in ("success_rate", "spl", "slow_successes", "min_speed_mps", "shield_route_rate")})
+    assert got["episodes"] == 35
+    assert got["success_rate"] >= 34 / 35
+    assert got["slow_successes"] == 0 and got["min_speed_mps"] >= 0.083
 
 
 @pytest.mark.slow
