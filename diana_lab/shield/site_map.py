@@ -4,11 +4,11 @@ Why it exists: without one the detour's search (and the route rule, :mod:`diana_
 ground as drivable, the free-space assumption. On the Mars yard that sends the rover into pockets closed by
 walls it cannot see from outside: the slowest successes of ``+experiment=reference_hazcams`` drove 68 m for a
 goal 13 m away (docs/reference_policy.md, "The speed target's slow successes"). Rovers rarely go in blind: a
-Mars rover's drives are planned on an orbital elevation model, and a competition yard's organisers publish its
-model (the ERC 2022 yard's DEM this project ships came from such a release). With the site's heights, the
-search judges unseen ground by the same slope rule and slope cost as the ground it has seen, and plans round
-walls before the rover meets them. Ground the shield's map has seen always wins over the site map: the map is
-what the rover measured today.
+Mars rover's drives are planned on an orbital elevation model, and a competition yard can be surveyed
+beforehand (the ERC 2022 yard's DEM this project ships is a public model of it, from the Leo Rover simulator).
+With the site's heights, the search judges unseen ground by the same slope rule and slope cost as the ground it
+has seen, and plans round walls before the rover meets them. Ground the shield's map has seen always wins over
+the site map: the map is what the rover measured today.
 
 The site map is heights on a regular grid (numpy only: the onboard runtime loads it too). Its gradient is
 taken once, by central differences, and read at the shield's map cells by the nearest site cell. How fine it
