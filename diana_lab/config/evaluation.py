@@ -142,9 +142,10 @@ class ShieldConfig:
     slope_cost_from_deg: float = 15.0
     slope_cost_to_deg: float = 22.0
     # m: a map of the site made before the drive (an orbital elevation model, a competition yard's survey): the
-    # world's ground averaged over squares this wide, whose slope the search (the detour's and the route rule's)
-    # reads where the shield's own map has seen nothing, instead of taking that ground as flat and drivable
-    # (diana_lab.shield.site_map; needs detour_after > 0 or route); 0: no site map
+    # world's terrain (not its obstacles) averaged over squares this wide, whose slope the search (the detour's
+    # and the route rule's) reads where the shield's own map gives no slope (unseen, or beside unseen ground),
+    # instead of taking that ground as flat and drivable (diana_lab.shield.site_map; needs detour_after > 0 or
+    # route); 0: no site map
     site_map_cell: float = 0.0
     # depth cameras that feed only the shield's map (ShieldCameraConfig); []: the env sensor's returns alone
     cameras: list[ShieldCameraConfig] = field(default_factory=list)

@@ -14,6 +14,7 @@ edge (clamp it in the position controller if your site has one).
 from __future__ import annotations
 
 import math
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -95,6 +96,8 @@ class Navigator:
         """Hand the shield's search the site map (:mod:`diana_lab.shield.site_map`, in the pose estimate's frame).
         A policy evaluated with one (the sidecar's ``shield.site_map_cell`` > 0) needs one: without it the search
         takes unseen ground as drivable and the rover no longer drives as evaluated."""
+        self._site_map: SiteMap | None = None
+        self._site_warned = False  # the off-the-map warning given since the last reset
         expected = float(self.spec.shield.get("site_map_cell", 0.0)) if self.spec.shield is not None else 0.0
         if site_map is None:
             if expected > 0:
@@ -111,7 +114,42 @@ class Navigator:
                 "site_map: this policy's sidecar has no shield search to read it (a slope shield with detour_after "
                 "> 0 or route)"
             )
+        if expected == 0:
+            warnings.warn(
+                "site_map: this policy was evaluated without a site map (its sidecar's shield.site_map_cell is 0); "
+                "its search reads this one, so it drives otherwise than evaluated",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+        elif not math.isclose(site_map.cell, expected, rel_tol=1e-6):
+            warnings.warn(
+                f"site_map: its cells are {site_map.cell:g} m, the policy was evaluated with {expected:g} m ones "
+                "(the sidecar's shield.site_map_cell); coarser cells blur walls the search should see",
+                RuntimeWarning,
+                stacklevel=3,
+            )
         self.shield.use_site_map(site_map)
+        self._site_map = site_map
+
+    def _warn_off_site_map(self, xy: np.ndarray, goal: np.ndarray) -> None:
+        """Warn, once per traverse, when the rover or its goal stands off the site map: the search takes ground
+        off it as drivable (as without a map), most likely a map in another frame than the pose estimates'."""
+        site = self._site_map
+        assert site is not None
+        gx, _ = site.gradient_at(np.array([xy[0], goal[0]]), np.array([xy[1], goal[1]]))
+        off = [name for name, v in zip(("the rover", "the goal"), gx, strict=True) if np.isnan(v)]
+        if off:
+            self._site_warned = True
+            ny, nx = site.heights.shape
+            x0, y0 = site.origin
+            warnings.warn(
+                f"site_map: {' and '.join(off)} off the map (rover at ({xy[0]:.1f}, {xy[1]:.1f}), goal at "
+                f"({goal[0]:.1f}, {goal[1]:.1f}); the map covers x {x0:g}..{x0 + nx * site.cell:g}, y "
+                f"{y0:g}..{y0 + ny * site.cell:g} m): the search takes ground off it as drivable. Is the map in the "
+                "pose estimates' frame?",
+                RuntimeWarning,
+                stacklevel=3,
+            )
 
     def _check_graph(self) -> None:
         got = {i.name: list(i.shape) for i in self.session.get_inputs()}
@@ -137,6 +175,7 @@ class Navigator:
         self.encoder.reset()
         if self.shield is not None:
             self.shield.reset()
+        self._site_warned = False
 
     def report_hazard(self, xy: Any) -> None:
         """Tell the slope shield where the wheels met ground they could not drive (world ``(x, y)``): where the
@@ -208,6 +247,8 @@ class Navigator:
         p = Pose.of(pose)  # every input checked once; the steps below trust them
         pts = check_cloud(cloud, drop_invalid)
         g = check_goal(goal)
+        if self._site_map is not None and not self._site_warned:
+            self._warn_off_site_map(p.xy, g)
         return self._waypoint(p, self._decide(p, self._observation(p, g, pts), pts, g))
 
     def _observation(self, p: Pose, goal: np.ndarray, pts: np.ndarray) -> dict[str, np.ndarray]:

@@ -175,7 +175,13 @@ class ShieldedPolicy:
         if self._site is None or self._site[0] is not world:
             from diana_lab.shield.site_map import SiteMap
 
-            self._site = (world, SiteMap.from_terrain(world.terrain, float(self.cfg.site_map_cell)))
+            try:
+                site = SiteMap.from_terrain(world.terrain, float(self.cfg.site_map_cell))
+            except ValueError as exc:
+                from diana_lab.config import ConfigError
+
+                raise ConfigError(f"eval.shield.site_map_cell={self.cfg.site_map_cell}: {exc}") from exc
+            self._site = (world, site)
         return self._site[1]
 
     def _counters(self) -> dict[str, int]:

@@ -7,8 +7,9 @@ goal 13 m away (docs/reference_policy.md, "The speed target's slow successes"). 
 Mars rover's drives are planned on an orbital elevation model, and a competition yard can be surveyed
 beforehand (the ERC 2022 yard's DEM this project ships is a public model of it, from the Leo Rover simulator).
 With the site's heights, the search judges unseen ground by the same slope rule and slope cost as the ground it
-has seen, and plans round walls before the rover meets them. Ground the shield's map has seen always wins over
-the site map: the map is what the rover measured today.
+has seen, and plans round walls before the rover meets them. Wherever the shield's map gives a slope (a cell and its
+4 neighbours seen) it wins over the site map: the map is what the rover measured today; the site map fills in
+the cells it gives none for, unseen ones and those beside unseen ground.
 
 The site map is heights on a regular grid (numpy only: the onboard runtime loads it too). Its gradient is
 taken once, by central differences, and read at the shield's map cells by the nearest site cell. How fine it
@@ -24,7 +25,22 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["SiteMap"]
+__all__ = ["MAX_SQUARES", "SiteMap"]
+
+# the most squares a simulated world's site map may have (16 M: 4,000 x 4,000, ~0.4 GB with its gradient): a cell
+# mistyped a hundred times too fine would otherwise take tens of GB before anything said so
+MAX_SQUARES = 16_000_000
+_BLOCK_SAMPLES = 2_000_000  # terrain samples taken at a time while building one (bounds the memory it takes)
+
+
+def _width(cell: Any, where: str) -> float:
+    """``cell`` as a positive finite width in metres, or a ValueError naming ``where``."""
+    if isinstance(cell, bool) or not isinstance(cell, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{where}: cell: expected a positive width in metres, got {cell!r}")
+    size = float(cell)
+    if not (math.isfinite(size) and size > 0):
+        raise ValueError(f"{where}: cell: expected a positive width in metres, got {cell!r}")
+    return size
 
 
 class SiteMap:
@@ -39,12 +55,14 @@ class SiteMap:
     """
 
     def __init__(self, heights: Any, origin: Any, cell: float) -> None:
+        size = _width(cell, "SiteMap")
+        if np.iscomplexobj(heights) or np.iscomplexobj(origin):
+            raise ValueError("SiteMap: expected real heights and origin, got complex numbers")
         try:
             h = np.array(heights, dtype=np.float64)
             o = np.asarray(origin, dtype=np.float64).reshape(-1)
-            size = float(cell)
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"SiteMap: expected numeric heights, origin and cell: {exc}") from exc
+            raise ValueError(f"SiteMap: expected numeric heights and origin: {exc}") from exc
         if h.ndim != 2 or min(h.shape) < 2:
             raise ValueError(f"SiteMap: heights: expected a 2-D grid of at least 2 x 2 cells, got shape {h.shape}")
         if not np.all(np.isfinite(h)):
@@ -52,8 +70,6 @@ class SiteMap:
             raise ValueError(f"SiteMap: heights: {bad} cells are NaN or infinite; expected finite heights")
         if o.shape != (2,) or not np.all(np.isfinite(o)):
             raise ValueError(f"SiteMap: origin: expected a finite world (x, y), got {origin!r}")
-        if not (math.isfinite(size) and size > 0):
-            raise ValueError(f"SiteMap: cell: expected a positive width in metres, got {cell!r}")
         self.heights, self.origin, self.cell = h, o, size
         self.heights.setflags(write=False)
         gy, gx = np.gradient(h, size)  # rise per metre along y (rows) and x (columns)
@@ -63,9 +79,11 @@ class SiteMap:
     def from_terrain(cls, terrain: Any, cell: float, samples: int = 4) -> SiteMap:
         """The site map of a simulated world's ``terrain`` (:class:`~diana_lab.sim.terrain.Terrain`): its heights
         averaged over ``cell``-wide squares (``samples`` x ``samples`` points each), the squares covering its
-        bounds from their lower-left corner (a part square at the far edges is left out)."""
-        if not (math.isfinite(cell) and cell > 0):
-            raise ValueError(f"SiteMap.from_terrain: cell: expected a positive width in metres, got {cell!r}")
+        bounds from their lower-left corner (a part square at the far edges is left out). The terrain only: a
+        world's obstacles (the craters' rocks) are not in it. At most :data:`MAX_SQUARES` squares."""
+        cell = _width(cell, "SiteMap.from_terrain")
+        if isinstance(samples, bool) or not isinstance(samples, (int, np.integer)) or samples < 1:
+            raise ValueError(f"SiteMap.from_terrain: samples: expected an integer >= 1, got {samples!r}")
         x_min, x_max, y_min, y_max = terrain.bounds
         nx = int(math.floor((x_max - x_min) / cell + 1e-9))
         ny = int(math.floor((y_max - y_min) / cell + 1e-9))
@@ -74,11 +92,21 @@ class SiteMap:
                 f"SiteMap.from_terrain: cell {cell} m leaves fewer than 2 x 2 squares on a "
                 f"{x_max - x_min:g} x {y_max - y_min:g} m terrain"
             )
+        if nx * ny > MAX_SQUARES:
+            raise ValueError(
+                f"SiteMap.from_terrain: cell {cell} m makes {nx} x {ny} squares on a {x_max - x_min:g} x "
+                f"{y_max - y_min:g} m terrain; expected at most {MAX_SQUARES:,} (a coarser cell)"
+            )
         within = (np.arange(samples) + 0.5) / samples * cell
         xs = x_min + (np.arange(nx)[:, None] * cell + within).ravel()
         ys = y_min + (np.arange(ny)[:, None] * cell + within).ravel()
-        grid_x, grid_y = np.meshgrid(xs, ys)
-        h = np.asarray(terrain.height(grid_x, grid_y)).reshape(ny, samples, nx, samples).mean(axis=(1, 3))
+        h = np.empty((ny, nx))
+        rows = max(1, _BLOCK_SAMPLES // (len(xs) * samples))  # rows of squares a block
+        for r0 in range(0, ny, rows):
+            r1 = min(ny, r0 + rows)
+            grid_x, grid_y = np.meshgrid(xs, ys[r0 * samples : r1 * samples])
+            block = np.asarray(terrain.height(grid_x, grid_y)).reshape(r1 - r0, samples, nx, samples)
+            h[r0:r1] = block.mean(axis=(1, 3))
         return cls(h, (x_min, y_min), cell)
 
     def gradient_at(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -179,7 +179,7 @@ class SlopeShield:
         self._stood = np.zeros((0, 2))
 
     def use_site_map(self, site_map: SiteMap | None) -> None:
-        """Let the search (the detour's and the route rule's) read ``site_map`` where this map has seen nothing
+        """Let the search (the detour's and the route rule's) read ``site_map`` where this map gives no slope
         (:mod:`diana_lab.shield.site_map`; None: unseen ground is drivable again). Kept across :meth:`reset`: it
         is the site's, not the traverse's."""
         if site_map is not None and self.detour is None:

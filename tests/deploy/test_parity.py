@@ -7,6 +7,8 @@ through :class:`diana_lab.deploy.Navigator` (built from the exported files only)
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -290,6 +292,20 @@ def test_with_a_site_map_the_runtime_drives_like_the_simulator(tmp_path, small_w
     assert replay(other, rec)["waypoint"] > 0.5
     with pytest.raises(ValueError, match=r"site_map: .*site_map_cell"):
         Navigator(nav.spec, nav.model_path)
+    with pytest.warns(RuntimeWarning, match=r"site_map: its cells are 0.5 m, .* 0.25 m"):
+        Navigator(nav.spec, nav.model_path, site_map=SiteMap(site.heights[::2, ::2], site.origin, 0.5))
+    # a map in another frame (say UTM) covers neither the rover nor its goal: said once per traverse
+    elsewhere = Navigator(nav.spec, nav.model_path, site_map=SiteMap(site.heights, (1000.0, 1000.0), site.cell))
+    with pytest.warns(RuntimeWarning, match=r"site_map: the rover and the goal off the map .* frame"):
+        elsewhere.next_waypoint(rec.poses[0], rec.goals[0], rec.clouds[0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        elsewhere.next_waypoint(rec.poses[1], rec.goals[1], rec.clouds[1])  # not again until reset
+        nav.reset()
+        nav.next_waypoint(rec.poses[0], rec.goals[0], rec.clouds[0])  # the right map: no warning
+    elsewhere.reset()
+    with pytest.warns(RuntimeWarning, match="off the map"):
+        elsewhere.next_waypoint(rec.poses[0], rec.goals[0], rec.clouds[0])
     with pytest.raises(ValueError, match=r"site_map: expected a diana_lab\.shield\.SiteMap"):
         Navigator(nav.spec, nav.model_path, site_map=site.heights)
 
@@ -299,6 +315,18 @@ def test_a_site_map_for_a_policy_without_a_shield_search_is_refused(depth_run):
 
     with pytest.raises(ValueError, match=r"site_map: .*no shield search"):
         Navigator.from_files(depth_run.onnx, site_map=SiteMap(np.zeros((3, 3)), (0, 0), 1.0))
+
+
+def test_a_site_map_for_a_policy_evaluated_without_one_is_used_with_a_warning(tmp_path, small_world):
+    from diana_lab.shield import SiteMap
+
+    shield = ["eval.shield.enabled=true", "eval.shield.radius=20", "eval.shield.route=true"]
+    run = export_run(tmp_path / "run", run_config(*SHIELDED_RUN), small_world, True, *shield)
+    run.env.close()
+    site = SiteMap.from_terrain(small_world.terrain, 0.25)
+    with pytest.warns(RuntimeWarning, match="evaluated without a site map"):
+        nav = Navigator.from_files(run.onnx, site_map=site)
+    assert nav.shield.detour.site_map is site
 
 
 def test_map_for_shield_needs_a_shield_and_a_camera_position(depth_run):

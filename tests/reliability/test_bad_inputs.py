@@ -195,6 +195,13 @@ ROWS = [
     ),
     Bad("evaluate-without-policy", EVAL, EVAL_ARGS, ("policy", "astar"), slow=True),
     Bad(
+        "site-map-cell-wider-than-the-world",
+        EVAL,
+        ("policy=pretrained", "+experiment=reference_sitemap", "eval.episodes=1", "eval.shield.site_map_cell=1000"),
+        ("eval.shield.site_map_cell=1000", "2 x 2 squares"),
+        slow=True,
+    ),
+    Bad(
         "evaluate-random-bytes-model",
         EVAL,
         ("policy={files}/random.zip", *EVAL_ARGS),

@@ -85,6 +85,9 @@ def test_from_terrain_averages_the_ground_over_each_square():
         (np.zeros((3, 3)), (0, 0), 0.0, "cell"),
         (np.zeros((3, 3)), (0, 0), -1.0, "cell"),
         (np.zeros((3, 3)), (0, 0), float("nan"), "cell"),
+        (np.zeros((3, 3)), (0, 0), "0.2", "cell"),
+        (np.zeros((3, 3)), (0, 0), True, "cell"),
+        (np.zeros((3, 3), dtype=complex), (0, 0), 0.2, "complex"),
         ([["a", "b"], ["c", "d"]], (0, 0), 0.2, "numeric"),
     ],
 )
@@ -93,9 +96,30 @@ def test_bad_site_maps_are_refused_naming_what(heights, origin, cell, named):
         SiteMap(heights, origin, cell)
 
 
-def test_a_cell_too_coarse_for_the_terrain_is_refused():
+def test_a_cell_too_coarse_or_far_too_fine_for_the_terrain_is_refused():
+    terrain = Terrain(np.zeros((11, 11)), 10.0, 10.0)
     with pytest.raises(ValueError, match="cell 8"):
-        SiteMap.from_terrain(Terrain(np.zeros((11, 11)), 10.0, 10.0), 8.0)
+        SiteMap.from_terrain(terrain, 8.0)
+    with pytest.raises(ValueError, match=r"cell 0\.001 m makes 10000 x 10000 squares"):  # 100 M: refused, not built
+        SiteMap.from_terrain(terrain, 0.001)
+
+
+@pytest.mark.parametrize(("cell", "samples"), [("0.2", 4), (True, 4), (None, 4), (0.5, 0), (0.5, 2.0)])
+def test_from_terrain_refuses_a_cell_or_samples_that_are_not_numbers_naming_them(cell, samples):
+    with pytest.raises(ValueError, match=r"cell|samples"):
+        SiteMap.from_terrain(Terrain(np.zeros((11, 11)), 10.0, 10.0), cell, samples)
+
+
+def test_built_in_blocks_it_is_the_same_map(monkeypatch):
+    """A large world is sampled a block of rows at a time (memory); the blocks join into the same map."""
+    import diana_lab.shield.site_map as module
+
+    g = np.linspace(-5.0, 5.0, 51)
+    x, y = np.meshgrid(g, g)
+    terrain = Terrain(np.sin(x) * np.cos(0.7 * y), 10.0, 10.0)
+    whole = SiteMap.from_terrain(terrain, 0.3)
+    monkeypatch.setattr(module, "_BLOCK_SAMPLES", 500)  # a few rows of squares a block
+    assert np.array_equal(SiteMap.from_terrain(terrain, 0.3).heights, whole.heights)
 
 
 def test_unseen_ground_is_judged_by_the_site_map():
