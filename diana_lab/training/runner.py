@@ -63,7 +63,7 @@ from diana_lab.training.resume import (
     newest_checkpoint_steps,
     write_run_info,
 )
-from diana_lab.training.signals import InterruptCheck, interrupts_as_exceptions
+from diana_lab.training.signals import InterruptCheck, interrupts_as_exceptions, unwrapped_interrupts
 from diana_lab.training.summary import TrainResult
 
 __all__ = ["RUN_GROUPS", "train"]
@@ -393,22 +393,23 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
     with interrupts_as_exceptions():
         try:
             try:
-                with uninterrupted():  # an interrupt while opening the run is raised once ``tracker`` holds it
-                    if uri is not None:
-                        run_name = _run_name(cfg, ctx, tracking)
-                        tracker = MlflowTracker(
-                            uri,
-                            tracking.experiment,
-                            run_name,
-                            resume.run_id if resume else None,
-                            parent_run_id=ctx.parent_run_id,
-                        )
-                run = TrainingRun(cfg, ctx, typed, tracker, resume)
-                run.log_run_metadata()
-                run.build()
-                run.learn()
-                summary = run.finish()
-                status = "FINISHED"
+                with unwrapped_interrupts():  # an interrupt that native code wrapped is raised as itself
+                    with uninterrupted():  # an interrupt while opening the run is raised once ``tracker`` holds it
+                        if uri is not None:
+                            run_name = _run_name(cfg, ctx, tracking)
+                            tracker = MlflowTracker(
+                                uri,
+                                tracking.experiment,
+                                run_name,
+                                resume.run_id if resume else None,
+                                parent_run_id=ctx.parent_run_id,
+                            )
+                    run = TrainingRun(cfg, ctx, typed, tracker, resume)
+                    run.log_run_metadata()
+                    run.build()
+                    run.learn()
+                    summary = run.finish()
+                    status = "FINISHED"
             except KeyboardInterrupt as exc:
                 status = "KILLED"
                 if run is not None:

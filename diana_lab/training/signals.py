@@ -9,6 +9,11 @@ Python swallows an exception raised while a finalizer or a weakref callback runs
 ..."), and a signal can land there (SQLAlchemy's garbage-collection hooks, for one): the interrupt would be
 lost and training go on. So the handler also remembers the interrupt, and safe points raise it again if it
 never arrived: :class:`InterruptCheck` on every training step, and :func:`raise_pending` elsewhere.
+
+Native code can wrap it, too: an interrupt that lands while numba's dispatcher runs (compiling or unpickling a
+kernel, as the sensor's ray caster does on its first calls) comes out as ``SystemError: ... returned a result
+with an exception set``, the interrupt its cause. :func:`unwrapped_interrupts` raises the interrupt itself again,
+so the run still ends KILLED with its checkpoint, not FAILED.
 """
 
 from __future__ import annotations
@@ -23,7 +28,14 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from diana_lab.tracking import atomic
 
-__all__ = ["InterruptCheck", "Terminated", "interrupt_exit_code", "interrupts_as_exceptions", "raise_pending"]
+__all__ = [
+    "InterruptCheck",
+    "Terminated",
+    "interrupt_exit_code",
+    "interrupts_as_exceptions",
+    "raise_pending",
+    "unwrapped_interrupts",
+]
 
 _pending: BaseException | None = None  # the last interrupt, until it propagates out of interrupts_as_exceptions
 
@@ -62,6 +74,31 @@ def interrupts_as_exceptions() -> Iterator[None]:
         for s, h in previous.items():
             signal.signal(s, h)
     raise_pending()  # an interrupt swallowed inside the block
+
+
+@contextlib.contextmanager
+def unwrapped_interrupts() -> Iterator[None]:
+    """Within the block, an exception caused by an interrupt (native code wrapped it: module docstring) is raised
+    as that interrupt."""
+    try:
+        yield
+    except Exception as exc:
+        interrupt = _interrupt_behind(exc)
+        if interrupt is None:
+            raise
+        raise interrupt from exc
+
+
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The ``KeyboardInterrupt`` in ``exc``'s chain of causes and contexts, if any."""
+    seen: set[int] = set()
+    link: BaseException | None = exc
+    while link is not None and id(link) not in seen:
+        if isinstance(link, KeyboardInterrupt):
+            return link
+        seen.add(id(link))
+        link = link.__cause__ or link.__context__
+    return None
 
 
 def raise_pending() -> None:
