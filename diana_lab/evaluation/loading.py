@@ -9,6 +9,9 @@ Accepted values:
   (:mod:`diana_lab.evaluation.perceived`; needs ``sensor.elevation_map.memory``, e.g. ``+experiment=reference``);
 * ``astar_seen`` -- ``astar_memory`` on the true cost maps, knowing only the cells that sensor map has hit (same
   module and needs; the reference policy's imitation expert);
+* ``bearing`` -- the candidates of ``action_space=discrete`` ranked by the goal's bearing alone
+  (:class:`~diana_lab.evaluation.policies.GoalBearing`): with ``eval.shield.enabled`` it drives behind the slope
+  shield in the network's place, the non-learnt baseline of what the network adds there;
 * ``cost_to_go_bound`` -- the ``cost_to_go`` network's planner fed the ``astar_memory`` expert's cost map,
   the bound of that architecture (:mod:`diana_lab.evaluation.cost_to_go_bound`; needs the run's
   ``+experiment=reference_ctg`` settings);
@@ -42,7 +45,7 @@ from diana_lab.cli import UserError
 from diana_lab.config import ConfigError
 from diana_lab.evaluation.compatibility import recorded_overrides
 from diana_lab.evaluation.oracle import AStarOracle
-from diana_lab.evaluation.policies import Policy, SB3Policy, ShieldedPolicy, StraightLine
+from diana_lab.evaluation.policies import GoalBearing, Policy, SB3Policy, ShieldedPolicy, StraightLine
 
 __all__ = [
     "BASELINES",
@@ -251,20 +254,20 @@ BASELINES: dict[str, Callable[[], Policy]] = {
     "astar_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=12.0, knowledge_memory=True),
 }
 # every policy ``policy=`` accepts by name besides ``pretrained`` (the baselines, and those that read the config)
-POLICY_NAMES = (*BASELINES, "astar_perceived", "astar_seen", "cost_to_go_bound")
+POLICY_NAMES = (*BASELINES, "astar_perceived", "astar_seen", "bearing", "cost_to_go_bound")
 
 
 def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     """The policy named by ``spec`` (see the module docstring); user mistakes raise :class:`UserError`.
 
-    With ``eval.shield.enabled`` a learnt discrete policy drives behind the slope shield
-    (:class:`~diana_lab.evaluation.policies.ShieldedPolicy`); the baselines plan for themselves and run
+    With ``eval.shield.enabled`` a learnt discrete policy (and ``bearing``, a ranking too) drives behind the slope
+    shield (:class:`~diana_lab.evaluation.policies.ShieldedPolicy`); the baselines plan for themselves and run
     without it (the note says so)."""
     loaded = _load(str(spec).strip(), cfg, eval_cfg)
     shield = getattr(eval_cfg, "shield", None)  # None: the baselines' callers pass no evaluation settings
     if shield is None or not shield.enabled:
         return loaded
-    if isinstance(loaded.policy, SB3Policy):
+    if isinstance(loaded.policy, (SB3Policy, GoalBearing)):
         try:
             loaded.policy = ShieldedPolicy(loaded.policy, shield, int(getattr(eval_cfg, "seed", 0)))
         except ConfigError as exc:
@@ -278,6 +281,14 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
 def _load(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     if spec in BASELINES:
         return LoadedPolicy(BASELINES[spec](), spec)
+    if spec == "bearing":
+        shape = OmegaConf.select(cfg, "action_space.shape")
+        if shape != "discrete":
+            raise UserError(
+                f"policy=bearing ranks a discrete action space's candidates, but action_space.shape={shape}; use "
+                "action_space=discrete (or a preset with it, e.g. +experiment=reference)"
+            )
+        return LoadedPolicy(GoalBearing(), spec)
     if spec == "cost_to_go_bound":  # reads the run's network settings, unlike the other baselines
         from diana_lab.evaluation.cost_to_go_bound import CostToGoBound
 

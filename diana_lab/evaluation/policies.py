@@ -12,6 +12,8 @@ the learnt policies.
 * :class:`~diana_lab.evaluation.oracle.AStarOracle` (in :mod:`diana_lab.evaluation.oracle`) -- knows the
   map: plans over the traversability cost map and hands out the path's waypoints. Its success rate is the
   suite's practical ceiling.
+* :class:`GoalBearing` -- a ranking of a discrete action space's candidates that knows only the goal's bearing:
+  behind the slope shield (``policy=bearing``) it is the non-learnt baseline a learnt ranking must beat there.
 """
 
 from __future__ import annotations
@@ -21,7 +23,15 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-__all__ = ["Policy", "SB3Policy", "ShieldedPolicy", "StraightLine", "sb3_policy", "waypoint_action"]
+__all__ = [
+    "GoalBearing",
+    "Policy",
+    "SB3Policy",
+    "ShieldedPolicy",
+    "StraightLine",
+    "sb3_policy",
+    "waypoint_action",
+]
 
 
 @runtime_checkable
@@ -62,6 +72,52 @@ class StraightLine:
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
         return waypoint_action(env, env.unwrapped.goal)
+
+
+class GoalBearing:
+    """A discrete action space's candidates ranked by the goal's bearing alone: the nearest bearing first, the
+    longer drive first among equal bearings; its first is driven.
+
+    Why: behind the slope shield (:class:`ShieldedPolicy`), whose checks, detour and route rule do much of the
+    navigating, the network's ranking is one part among many; this ranking, which knows nothing of the terrain,
+    is what that part must beat for the network to earn its place (``python -m diana_lab.evaluate
+    policy=bearing +experiment=reference``: the same shield, the same rover, the network replaced). It reads
+    the goal from the observation's ``goal`` vector (sine and cosine of the bearing error; the rover's yaw too
+    for ``action_space.frame=world``), as a network would.
+    """
+
+    name = "bearing"
+    discrete = True
+    vecnormalize = None  # no statistics to apply (what ShieldedPolicy and the exporter ask a ranking for)
+
+    def __init__(self) -> None:
+        self._bearings: np.ndarray | None = None
+        self._lengths: np.ndarray | None = None
+        self._world_frame = False
+
+    def reset(self, env: gym.Env) -> None:
+        mapping = env.unwrapped.mapping
+        if not mapping.discrete:
+            raise ValueError(
+                f"policy=bearing ranks a discrete action space's candidates; action_space.shape={mapping.cfg.shape} "
+                "has none (use action_space=discrete)"
+            )
+        table = mapping.candidates
+        self._bearings, self._lengths = np.arctan2(table[:, 1], table[:, 0]), np.hypot(table[:, 0], table[:, 1])
+        self._world_frame = mapping.cfg.frame == "world"
+
+    def ranking(self, obs: Any) -> np.ndarray:
+        """Every candidate index, the nearest to the goal's bearing first (ties: the longer drive, then the
+        lower index)."""
+        if self._bearings is None:
+            raise RuntimeError("GoalBearing.ranking: call reset(env) first (every episode), as the evaluation does")
+        g = np.asarray(obs["goal"], dtype=np.float64).reshape(-1)
+        bearing = np.arctan2(g[1], g[2]) + (np.arctan2(g[5], g[6]) if self._world_frame else 0.0)
+        gap = np.abs(np.angle(np.exp(1j * (self._bearings - bearing))))
+        return np.lexsort((-self._lengths, np.round(gap, 9))).astype(np.int64)
+
+    def act(self, obs: Any, env: gym.Env) -> np.ndarray:
+        return np.asarray(self.ranking(obs)[0], dtype=np.int64).reshape(())
 
 
 class SB3Policy:
@@ -115,15 +171,16 @@ class SB3Policy:
 
 
 class ShieldedPolicy:
-    """A discrete learnt policy behind the slope shield (:mod:`diana_lab.shield.slope_shield`): the first of its
-    ``top_k`` most probable candidates whose drive the rover's own fine height map does not call too steep.
+    """A discrete learnt policy (or another ranking of the candidates: :class:`GoalBearing`) behind the slope shield
+    (:mod:`diana_lab.shield.slope_shield`): the first of its ``top_k`` most probable candidates whose drive the
+    rover's own fine height map does not call too steep.
 
     The shield's map is fed every sensor frame the env takes (``env.unwrapped.sensor.last_frame``): one per
     reset and per step, the frame the observation was encoded from; and, with ``eval.shield.cameras``, a frame
     of each hazard camera taken from the same pose (:mod:`diana_lab.evaluation.shield_cameras`), whose noise
     draws from a generator seeded by ``seed`` and the episode's number in the suite."""
 
-    def __init__(self, policy: SB3Policy, cfg: Any, seed: int = 0) -> None:
+    def __init__(self, policy: SB3Policy | GoalBearing, cfg: Any, seed: int = 0) -> None:
         if not policy.discrete:
             from diana_lab.config import ConfigError
 

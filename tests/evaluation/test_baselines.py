@@ -192,3 +192,37 @@ def test_the_cost_to_go_bound_needs_a_discrete_elevation_map_run():
 
     with pytest.raises(UserError, match=r"action_space=discrete and sensor\.encoding=elevation_map"):
         load_policy("cost_to_go_bound", compose([]), None)
+
+
+@pytest.mark.parametrize("frame", ["rover", "world"])
+def test_the_bearing_ranking_puts_the_candidate_nearest_the_goals_bearing_first(frame):
+    from diana_lab.evaluation.policies import GoalBearing
+
+    env = small_env("action_space=discrete", f"action_space.frame={frame}")
+    try:
+        policy = GoalBearing()
+        obs, _ = env.reset(seed=0, options={"start": [-6.0, -2.0], "goal": [5.0, 4.0], "yaw": 2.2})
+        policy.reset(env)
+        order = policy.ranking(obs)
+        assert sorted(order) == list(range(env.action_space.n))  # every candidate, once
+        offsets = env.mapping.world_offsets(env.pose_estimate.yaw)
+        to_goal = np.arctan2(4.0 - env.pose_estimate.xy[1], 5.0 - env.pose_estimate.xy[0])
+        gaps = np.abs(np.angle(np.exp(1j * (np.arctan2(offsets[:, 1], offsets[:, 0]) - to_goal))))
+        assert np.all(np.diff(np.round(gaps[order], 9)) >= 0)  # nearest bearing first
+        lengths = np.hypot(*offsets.T)
+        assert lengths[order[0]] == pytest.approx(lengths.max())  # and the longest drive of that bearing
+        # alone (no shield) it drives the straight line: on open ground it reaches the goal
+        df = run_suite(policy, env, [EpisodeSpec(np.array([-6.0, -2.0]), 2.2, np.array([5.0, 4.0]), seed=1)])
+        assert df.loc[0, "outcome"] == "success"
+    finally:
+        env.close()
+
+
+def test_the_bearing_ranking_needs_a_discrete_action_space():
+    from diana_lab.cli import UserError
+    from diana_lab.config import to_object
+    from diana_lab.evaluation.loading import load_policy
+
+    cfg = compose([*SMALL_FLAT, "action_space=square"])
+    with pytest.raises(UserError, match=r"policy=bearing .*action_space.shape=square"):
+        load_policy("bearing", cfg, to_object("eval", cfg.eval))

@@ -182,3 +182,23 @@ def test_a_run_evaluated_without_its_trainings_overrides_is_told_which_to_add(tm
     assert message.endswith("Re-run with the training's overrides: +experiment=quick"), message
     proc = evaluate_cli(tmp_path / "with_preset", *args, "+experiment=quick")
     assert proc.returncode == 0, proc.stderr
+
+
+def test_the_bearing_ranking_drives_behind_the_presets_shield_in_the_networks_place(tmp_path):
+    """``policy=bearing +experiment=reference``: the non-learnt ranking behind the same shield (its counters in
+    the summary), so what the network adds there is one command away."""
+    out = tmp_path / "bearing.json"
+    proc = evaluate_cli(
+        tmp_path / "run",
+        "policy=bearing",
+        "+experiment=reference",
+        "eval.episodes=3",
+        "eval.video=false",
+        "eval.plots=false",
+        "tracking.enabled=false",
+        f"output={out}",
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(out.read_text())
+    assert summary["episodes"] == 3
+    assert "shield_veto_rate" in summary and "runs without it" not in proc.stderr + proc.stdout
