@@ -62,10 +62,16 @@ class ImitationConfig:
     # of what the expert knows, MSE), this much against the action loss; needs algo.extractor.elevation_encoder
     # =cost_to_go. Dense labels: 900 per state instead of one action.
     cost_weight: float = 0.0
+    # > 0 (action_space=discrete only): soft labels. Instead of the expert's one choice, the policy is fitted to
+    # softmax(-(c - min c) / label_temperature) over every candidate's cost c to the goal as the expert reckons it
+    # (segment + cost to go, in weighted metres; candidates with no way get nothing), so near-tied candidates
+    # share the label instead of one of them being right and its neighbour wrong. 0: the expert's choice alone
+    label_temperature: float = 0.0
 
     def __post_init__(self) -> None:
         key = "train.imitation"
         non_negative(f"{key}.cost_weight", self.cost_weight)
+        non_negative(f"{key}.label_temperature", self.label_temperature)
         one_of(f"{key}.expert", self.expert, EXPERTS)
         positive(f"{key}.knowledge_radius", self.knowledge_radius)
         positive_int(f"{key}.iterations", self.iterations)

@@ -35,7 +35,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from diana_lab.config.sim import RobotConfig
-from diana_lab.planning import CostMap, next_waypoint, plan, simplify
+from diana_lab.planning import CostMap, choose_waypoint, plan, simplify
 from diana_lab.sim.world import World
 
 __all__ = ["AStarOracle", "oracle_costmaps", "wheel_pitch_deg"]
@@ -163,6 +163,9 @@ class AStarOracle:
         self._next = 0
         self._sent: np.ndarray | None = None
         self.known: CostMap | None = None  # the first map the last plan tried, as the oracle knew it
+        # receding over a discrete action space: every candidate's cost (segment + cost to go, ``inf``: no way)
+        # on the map the last choice was made on, in action order; None when no map had a way
+        self.candidate_costs: np.ndarray | None = None
 
     def costmaps(self, env: gym.Env) -> tuple[CostMap, ...]:
         """The maps to try in order (cached per cost map: one env, one world, one robot)."""
@@ -214,7 +217,7 @@ class AStarOracle:
         base = env.unwrapped
         reach = self.spacing * base.mapping.extent
         self.waypoints = np.asarray(base.goal, dtype=np.float64)[None, :]  # if nothing else: head for the goal
-        self.known = None
+        self.known, self.candidate_costs = None, None
         for cm in self._known(env, self.costmaps(env)):
             if self.known is None:
                 self.known = cm
@@ -223,7 +226,7 @@ class AStarOracle:
                 if base.mapping.discrete:  # choose among the actions the policy has, not the nearest to a free point
                     choices = np.asarray(start, dtype=np.float64) + base.mapping.world_offsets(base.pose_estimate.yaw)
                 # a knowledge-limited map changes every step: search it only as far as this step needs
-                wp = next_waypoint(
+                choice = choose_waypoint(
                     cm,
                     start,
                     base.goal,
@@ -233,8 +236,8 @@ class AStarOracle:
                     candidates=choices,
                     full_search=self.knowledge_radius is None,
                 )
-                if wp is not None:
-                    self.waypoints = wp[None, :]
+                if choice is not None:
+                    self.waypoints, self.candidate_costs = choice.waypoint[None, :], choice.costs
                     break
             else:
                 path = plan(cm, start, base.goal, weighted=True, snap=self.snap)

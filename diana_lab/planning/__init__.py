@@ -6,14 +6,24 @@ Used by the episode sampler (start and goal in one connected component, so a pat
 
 from diana_lab.planning.costmap import CostMap, CostMapConfig, build_costmap, shared_costmap
 from diana_lab.planning.hazards import HazardLayers, terrain_hazards
-from diana_lab.planning.paths import Path, next_waypoint, plan, shortest_path_length, simplify
+from diana_lab.planning.paths import (
+    Path,
+    WaypointChoice,
+    choose_waypoint,
+    next_waypoint,
+    plan,
+    shortest_path_length,
+    simplify,
+)
 
 __all__ = [
     "CostMap",
     "CostMapConfig",
     "HazardLayers",
     "Path",
+    "WaypointChoice",
     "build_costmap",
+    "choose_waypoint",
     "next_waypoint",
     "plan",
     "shared_costmap",

@@ -27,6 +27,7 @@ import itertools
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from scipy.sparse import csr_array
@@ -36,7 +37,7 @@ from diana_lab.planning.costmap import CostMap
 from diana_lab.planning.smoothing import corners, segment_costs, smooth_path
 from diana_lab.shield.grid_search import cost_to_go
 
-__all__ = ["Path", "next_waypoint", "plan", "shortest_path_length", "simplify"]
+__all__ = ["Path", "WaypointChoice", "choose_waypoint", "next_waypoint", "plan", "shortest_path_length", "simplify"]
 
 _NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))  # (diy, dix)
 _SEARCH_CACHE = 4  # single-source results kept per cost map and metric
@@ -183,7 +184,31 @@ def plan(
     return Path(points=pts, length=length, cost=float(dist[g]))
 
 
+@dataclass(frozen=True)
+class WaypointChoice:
+    """What :func:`choose_waypoint` decided: the ``waypoint`` (world x, y) and, when it chose among given
+    candidates, ``costs``: each candidate's segment cost plus cost to go (``inf`` where it has no way to the goal
+    or lies off the map), in the candidates' order, the chosen one's lowered to the least (see
+    :func:`choose_waypoint`). ``None`` without given candidates."""
+
+    waypoint: np.ndarray
+    costs: np.ndarray | None = None
+
+
 def next_waypoint(
+    costmap: CostMap,
+    start_xy: np.ndarray,
+    goal_xy: np.ndarray,
+    reach: float,
+    **kwargs: Any,
+) -> np.ndarray | None:
+    """The best next waypoint within ``reach`` of ``start_xy`` on the way to ``goal_xy``, or None: the waypoint
+    of :func:`choose_waypoint` (the same arguments)."""
+    choice = choose_waypoint(costmap, start_xy, goal_xy, reach, **kwargs)
+    return None if choice is None else choice.waypoint
+
+
+def choose_waypoint(
     costmap: CostMap,
     start_xy: np.ndarray,
     goal_xy: np.ndarray,
@@ -195,7 +220,7 @@ def next_waypoint(
     rings: int = 4,
     candidates: np.ndarray | None = None,
     full_search: bool = True,
-) -> np.ndarray | None:
+) -> WaypointChoice | None:
     """The best next waypoint within ``reach`` of ``start_xy`` on the way to ``goal_xy``, or None.
 
     Candidates lie on ``rings`` circles up to ``reach`` (``angles`` per circle, plus the goal when within
@@ -203,7 +228,11 @@ def next_waypoint(
     cell to the goal -- a one-step any-angle look-ahead on the cost-to-go field -- unless the straight line to
     the goal costs no more, which is then followed. Given ``candidates`` (world points, ``(n, 2)``: a
     discrete action space's waypoints), the best of exactly those is returned (``reach`` unused), so an
-    expert labels with an action the learner can take, not the nearest one to a waypoint it cannot.
+    expert labels with an action the learner can take, not the nearest one to a waypoint it cannot; the
+    choice then carries every candidate's cost too (what a soft imitation label is made of,
+    ``train.imitation.label_temperature``). When the straight line to the goal wins, the candidate chosen along
+    it may cost a little more on the grid than the least (the grid's cost to go overestimates off-axis ways), so
+    its cost is lowered to the least: the expert's choice is always among the cheapest.
 
     Why not :func:`plan`: an expert asked for the next waypoint from every state an episode visits (DAgger
     labels the learner's states, not its own) would run a search and a smoothing per step (10-30 ms on the
@@ -224,9 +253,10 @@ def next_waypoint(
         cand = start + (radius[:, None, None] * np.stack([np.cos(theta), np.sin(theta)], axis=-1)).reshape(-1, 2)
     else:
         cand = np.asarray(candidates, dtype=np.float64).reshape(-1, 2)
+    index = np.arange(len(cand))  # each remaining candidate's row among those given
     ix, iy = costmap.world_to_cell(cand[:, 0], cand[:, 1])
     inside = costmap.inside(ix, iy)
-    cand, ix, iy = cand[inside], np.asarray(ix)[inside], np.asarray(iy)[inside]
+    cand, index, ix, iy = cand[inside], index[inside], np.asarray(ix)[inside], np.asarray(iy)[inside]
     cand_cells = np.ravel_multi_index((iy, ix), costmap.shape)
     if full_search:
         to_go, _ = _search(costmap, g, weighted)
@@ -255,12 +285,18 @@ def next_waypoint(
     if direct <= total[best] + costmap.resolution * float(cells.flat[g]):
         d = math.dist(start, goal)
         if candidates is None:
-            return goal.copy() if d <= reach else start + (goal - start) * (reach / d)
+            return WaypointChoice(goal.copy() if d <= reach else start + (goal - start) * (reach / d))
         far = float(np.max(np.hypot(*(cand - start).T)))
         aim = goal if d <= far else start + (goal - start) * (far / d)
         gaps = np.where(np.isfinite(total), np.hypot(*(cand - aim).T), np.inf)
-        return cand[int(np.argmin(gaps))].copy()
-    return cand[best].copy()
+        best_total, best = float(total[best]), int(np.argmin(gaps))
+        total = total.copy()
+        total[best] = min(float(total[best]), best_total)
+    if candidates is None:
+        return WaypointChoice(cand[best].copy())
+    costs = np.full(len(np.asarray(candidates).reshape(-1, 2)), np.inf)
+    costs[index[finite]] = total
+    return WaypointChoice(cand[best].copy(), costs)
 
 
 def shortest_path_length(

@@ -109,7 +109,7 @@ def make_env(groups: dict[str, Any], render_mode: str | None = None, expert: Imi
                 f"{groups['sensor'].get('encoding')!r}"
             )
         offsets = cost_label_offsets(groups["sensor"]["elevation_map"])
-    return ExpertLabels(env, make_expert(expert), offsets)
+    return ExpertLabels(env, make_expert(expert), offsets, candidate_costs=expert.label_temperature > 0)
 
 
 def check_env(groups: dict[str, Any], seed: int) -> tuple[gym.Space, gym.Space]:

@@ -14,7 +14,9 @@ policy over the learner's own observations:
   a continuous action space, by cross-entropy of its action logits for ``action_space=discrete``, whose
   labels are the candidates nearest to the expert's waypoints (the expert speaks through
   ``WaypointMapping.action_for``). Regression averages a multimodal expert's choices; a categorical head
-  picks one of them.
+  picks one of them. With ``label_temperature`` > 0 the categorical head is fitted to soft labels instead:
+  a softmax over every candidate's cost to the goal as the expert reckons it (:func:`soft_targets`), so that
+  of two near-tied candidates neither is taught as wrong.
 
 The labels travel in ``info["expert_action"]`` from :class:`ExpertLabels`, a wrapper inside each training
 env, so imitation runs through the very VecEnv (and subprocesses) that RL uses next. The expert is
@@ -50,10 +52,12 @@ __all__ = [
     "expert_cost_label",
     "imitate",
     "make_expert",
+    "soft_targets",
 ]
 
 LABEL_KEY = "expert_action"
 COST_KEY = "expert_cost"
+CANDIDATES_KEY = "expert_candidate_costs"
 
 
 def make_expert(cfg: ImitationConfig) -> Any:
@@ -118,14 +122,24 @@ class ExpertLabels(gym.Wrapper):
 
     Labelling costs about a millisecond per step (the expert's path query), so :meth:`set_labelling` turns
     it off for the RL stage that follows imitation. Given ``cost_offsets`` (:func:`cost_label_offsets`), it
-    also adds ``info["expert_cost"]`` (:func:`expert_cost_label`).
+    also adds ``info["expert_cost"]`` (:func:`expert_cost_label`); with ``candidate_costs``, every candidate's
+    cost as the expert reckoned it for that choice (``info["expert_candidate_costs"]``, float32 ``(n,)``, ``inf``
+    where it saw no way: all ``inf`` when it had no plan), the material of soft labels.
     """
 
-    def __init__(self, env: gym.Env, expert: Any, cost_offsets: np.ndarray | None = None) -> None:
+    def __init__(
+        self, env: gym.Env, expert: Any, cost_offsets: np.ndarray | None = None, candidate_costs: bool = False
+    ) -> None:
         super().__init__(env)
         self.expert = expert
         self.labelling = True
         self.cost_offsets = cost_offsets
+        self.candidate_costs = bool(candidate_costs)
+        if self.candidate_costs and not isinstance(env.action_space, gym.spaces.Discrete):
+            raise ValueError(
+                "train.imitation.label_temperature: soft labels spread over a discrete action space's candidates; "
+                f"set action_space=discrete (or train.imitation.label_temperature=0), got {env.action_space}"
+            )
         if cost_offsets is not None:
             space = env.observation_space["elevation_map"] if "elevation_map" in env.observation_space.spaces else None
             if space is None or space.shape[1] * space.shape[2] * 4 != len(cost_offsets):
@@ -145,10 +159,18 @@ class ExpertLabels(gym.Wrapper):
     def _cost_label(self) -> np.ndarray:
         return expert_cost_label(self.expert, self.env, self.cost_offsets, self._cost_shape)
 
+    def _candidate_costs(self) -> np.ndarray:
+        costs = getattr(self.expert, "candidate_costs", None)
+        if costs is None:
+            return np.full(self.action_space.n, np.inf, dtype=np.float32)
+        return np.asarray(costs, dtype=np.float32)
+
     def _add_labels(self, obs: Any, info: dict) -> None:
-        info[LABEL_KEY] = self._label(obs)
+        info[LABEL_KEY] = self._label(obs)  # the expert chooses here, and so sets its candidate costs
         if self.cost_offsets is not None:
             info[COST_KEY] = self._cost_label()
+        if self.candidate_costs:
+            info[CANDIDATES_KEY] = self._candidate_costs()
 
     def reset(self, **kwargs: Any) -> tuple[Any, dict]:
         obs, info = self.env.reset(**kwargs)
@@ -178,28 +200,44 @@ def _label_dtype(space: gym.Space) -> type:
 
 
 class _Dataset:
-    """The aggregated (raw observation, expert action) pairs, preallocated for every iteration's steps."""
+    """The aggregated (raw observation, expert action) pairs, preallocated for every iteration's steps; with
+    them the expert's cost-map labels (``cost_shape``) and its candidates' costs (``candidates``), if asked."""
 
     def __init__(
-        self, space: gym.spaces.Dict, capacity: int, action_space: gym.Space, cost_shape: tuple | None = None
+        self,
+        space: gym.spaces.Dict,
+        capacity: int,
+        action_space: gym.Space,
+        cost_shape: tuple | None = None,
+        candidates: int = 0,
     ) -> None:
         self.obs = {k: np.zeros((capacity, *s.shape), dtype=np.float32) for k, s in space.spaces.items()}
         self.actions = np.zeros((capacity, *action_space.shape), dtype=_label_dtype(action_space))
         self.costs = None if cost_shape is None else np.zeros((capacity, *cost_shape), dtype=np.float16)
+        self.candidate_costs = np.zeros((capacity, candidates), dtype=np.float32) if candidates else None
         self.size = 0
 
-    def add(self, obs: dict[str, np.ndarray], actions: np.ndarray, costs: np.ndarray | None = None) -> None:
+    def add(
+        self,
+        obs: dict[str, np.ndarray],
+        actions: np.ndarray,
+        costs: np.ndarray | None = None,
+        candidate_costs: np.ndarray | None = None,
+    ) -> None:
         n = min(len(actions), len(self.actions) - self.size)
         for k, buf in self.obs.items():
             buf[self.size : self.size + n] = obs[k][:n]
         self.actions[self.size : self.size + n] = actions[:n]
         if self.costs is not None:
             self.costs[self.size : self.size + n] = costs[:n]
+        if self.candidate_costs is not None:
+            self.candidate_costs[self.size : self.size + n] = candidate_costs[:n]
         self.size += n
 
-    def batch(self, idx: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray | None]:
+    def batch(self, idx: np.ndarray) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray | None, np.ndarray | None]:
         costs = None if self.costs is None else self.costs[idx].astype(np.float32)
-        return {k: v[idx] for k, v in self.obs.items()}, self.actions[idx], costs
+        candidate_costs = None if self.candidate_costs is None else self.candidate_costs[idx]
+        return {k: v[idx] for k, v in self.obs.items()}, self.actions[idx], costs, candidate_costs
 
 
 def _labels(infos: Any, space: gym.Space) -> np.ndarray:
@@ -215,12 +253,38 @@ def _labels(infos: Any, space: gym.Space) -> np.ndarray:
     return out
 
 
-def _costs(infos: Any, shape: tuple) -> np.ndarray:
-    """The expert's cost-map labels of a VecEnv step, ``(n, rows, cols)`` float16."""
-    out = np.zeros((len(infos), *shape), dtype=np.float16)
+def _costs(infos: Any, shape: tuple, key: str = COST_KEY, dtype: type = np.float16) -> np.ndarray:
+    """The expert's cost-map labels of a VecEnv step, ``(n, rows, cols)`` float16 (or, with ``key``
+    :data:`CANDIDATES_KEY`, its candidates' costs, ``(n, candidates)``)."""
+    out = np.zeros((len(infos), *shape), dtype=dtype)
     for i, info in enumerate(infos):
-        out[i] = info[COST_KEY]
+        out[i] = info[key]
     return out
+
+
+def _candidate_costs(infos: Any, n: int) -> np.ndarray:
+    return _costs(infos, (n,), CANDIDATES_KEY, np.float32)
+
+
+def soft_targets(candidate_costs: np.ndarray, actions: np.ndarray, temperature: float) -> np.ndarray:
+    """Soft labels ``(batch, n)``: ``softmax(-(c - min c) / temperature)`` over each row's candidate costs ``c``,
+    nothing on a candidate with no way (``inf``); a row with no finite cost (the expert had no plan and headed
+    straight for the goal) is the expert's action ``actions`` alone.
+
+    Why: the expert's one choice among 96 candidates is hard to predict from the map (17 % top-1 agreement in
+    the offline probe of docs/reference_policy.md, many of them near-ties: the 1, 2 and 3 m drives along one
+    bearing reach the same cost to go), and a hard label teaches every near-tie but one as wrong. Its costs say
+    how much worse each candidate is, in the units of the path.
+    """
+    c = np.asarray(candidate_costs, dtype=np.float64)
+    finite = np.isfinite(c)
+    has_any = finite.any(axis=1)
+    least = np.where(has_any, np.min(np.where(finite, c, np.inf), axis=1), 0.0)[:, None]
+    logits = np.where(finite, -(c - least) / temperature, -np.inf)
+    logits[~has_any] = -np.inf
+    logits[~has_any, np.asarray(actions, dtype=np.int64)[~has_any]] = 0.0
+    weights = np.exp(logits - logits.max(axis=1, keepdims=True))
+    return (weights / weights.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
 def _cost_net(policy: Any) -> Any:
@@ -245,8 +309,9 @@ def _cost_loss(net: Any, elevation: torch.Tensor, target: np.ndarray) -> torch.T
 
 
 def _loss(policy: Any, obs: dict[str, torch.Tensor], target: np.ndarray) -> torch.Tensor:
-    """Cross-entropy of the action logits on candidate indices (a categorical policy), else the MSE of the
-    deterministic action (the Gaussian mean, or tanh of it) on the expert's actions."""
+    """Cross-entropy of the action logits on candidate indices or on soft labels (:func:`soft_targets`; a
+    categorical policy), else the MSE of the deterministic action (the Gaussian mean, or tanh of it) on the
+    expert's actions."""
     if isinstance(policy.action_space, gym.spaces.Discrete):
         logits = policy.get_distribution(obs).distribution.logits
         return torch.nn.functional.cross_entropy(logits, torch.as_tensor(target, device=logits.device))
@@ -279,7 +344,9 @@ def _fit_epochs(
         order = rng.permutation(data.size)
         losses, cost_losses = [], []
         for start in range(0, data.size, cfg.batch_size):
-            obs, target, costs = data.batch(np.sort(order[start : start + cfg.batch_size]))
+            obs, target, costs, candidate_costs = data.batch(np.sort(order[start : start + cfg.batch_size]))
+            if candidate_costs is not None:
+                target = soft_targets(candidate_costs, target, cfg.label_temperature)
             if vecnorm is not None:
                 obs = vecnorm.normalize_obs(obs)
             obs_t, _ = policy.obs_to_tensor(obs)
@@ -320,7 +387,9 @@ def imitate(
         if cost_shape is None:
             raise ConfigError("train.imitation.cost_weight: cost labels need an elevation_map observation")
         _cost_net(model.policy)  # fail before the first step, not after an iteration of labelling
-    data = _Dataset(space, cfg.iterations * per_env * n_envs, venv.action_space, cost_shape)
+    soft = cfg.label_temperature > 0  # the envs' ExpertLabels refuse a continuous action space
+    candidates = int(venv.action_space.n) if soft else 0
+    data = _Dataset(space, cfg.iterations * per_env * n_envs, venv.action_space, cost_shape, candidates)
     rng = np.random.default_rng(seed)
     vecnorm = model.get_vec_normalize_env()
     result = ImitationResult()
@@ -329,13 +398,14 @@ def imitate(
     base = venv.unwrapped  # VecEnvWrappers (VecNormalize) keep a reset_infos of their own that stays empty
     labels = _labels(base.reset_infos, venv.action_space)
     costs = _costs(base.reset_infos, cost_shape) if cost_shape else None
+    candidate_costs = _candidate_costs(base.reset_infos, candidates) if soft else None
     for it in range(cfg.iterations):
         beta = cfg.beta * cfg.beta_decay**it
         outcomes: dict[str, int] = {}
         learner_steps = 0
         for _ in range(per_env):
             raw = vecnorm.get_original_obs() if vecnorm is not None else obs
-            data.add(raw, labels, costs)
+            data.add(raw, labels, costs, candidate_costs)
             use_expert = rng.random(n_envs) < beta
             actions = labels.copy()
             if not use_expert.all():
@@ -353,6 +423,7 @@ def imitate(
                 next_labels.append(base.reset_infos[i] if done else infos[i])
             labels = _labels(next_labels, venv.action_space)
             costs = _costs(next_labels, cost_shape) if cost_shape else None
+            candidate_costs = _candidate_costs(next_labels, candidates) if soft else None
         loss, cost_loss = _fit(model, data, cfg, rng)
         episodes = sum(outcomes.values())
         row = {

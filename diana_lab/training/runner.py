@@ -378,6 +378,12 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
             "train.final_eval=false turns off; drop one of them"
         )
     imitation = train_cfg.imitation
+    if imitation.enabled and imitation.label_temperature > 0 and typed["action_space"].shape != "discrete":
+        raise C.ConfigError(
+            f"train.imitation.label_temperature={imitation.label_temperature}: soft labels spread over a discrete "
+            f"action space's candidates, but action_space.shape={typed['action_space'].shape}; set "
+            "action_space=discrete or train.imitation.label_temperature=0"
+        )
     if imitation.enabled and imitation.expert == "astar_seen":  # the expert reads the policy's own sensor map
         from diana_lab.evaluation.perceived import check_perceivable
 

@@ -202,3 +202,37 @@ def test_next_waypoint_among_candidates_picks_one_of_them_and_goes_round_the_wal
     assert 6 <= steps <= 12  # round the north end (about 17 m), not a wander
     # the candidates are all it may choose from: with none traversable there is no answer
     assert next_waypoint(cm, start, goal, reach=3.0, candidates=np.array([[0.0, 0.0]])) is None
+
+
+def test_a_choice_among_candidates_costs_each_of_them_and_the_chosen_one_least(jackal):
+    """``choose_waypoint``'s ``costs`` (the material of soft imitation labels): one per candidate, in their
+    order; ``inf`` inside the wall, beyond the map's edge or with no way; the chosen candidate costs the least;
+    on open ground a candidate's cost is its drive plus the straight way on, so it grows with the detour."""
+    from diana_lab.envs.action_spaces import candidate_offsets
+    from diana_lab.planning import choose_waypoint, next_waypoint
+
+    world = flat_world(obstacles=[box(-0.2, 0.2, -11.0, 6.0, 1.0)])
+    cm = build_costmap(world, jackal)
+    table = candidate_offsets(32, [1.0, 2.0, 3.0])
+    start, goal = np.array([-3.0, 0.0]), np.array([3.0, 0.0])
+    choices = np.vstack([start + table, [[500.0, 0.0]]])  # and one far off the map
+    choice = choose_waypoint(cm, start, goal, reach=3.0, candidates=choices)
+    assert choice.costs.shape == (len(choices),)
+    assert np.isinf(choice.costs[-1])
+    in_wall = np.isinf(cm.cost_at(choices[:, 0], choices[:, 1]))
+    assert in_wall.any() and np.all(np.isinf(choice.costs[in_wall]))
+    chosen = int(np.argmin(np.hypot(*(choices - choice.waypoint).T)))
+    assert choice.costs[chosen] == np.min(choice.costs)
+    np.testing.assert_array_equal(next_waypoint(cm, start, goal, reach=3.0, candidates=choices), choice.waypoint)
+    assert choose_waypoint(cm, start, goal, reach=3.0).costs is None  # no candidates given: no costs
+
+    open_cm = build_costmap(flat_world(), jackal)
+    start, far_goal = np.array([-8.0, 0.0]), np.array([8.0, 0.0])
+    costs = choose_waypoint(open_cm, start, far_goal, reach=3.0, candidates=start + table).costs
+    bearings = np.arctan2(table[:, 1], table[:, 0])
+    three = np.isclose(np.hypot(*table.T), 3.0)
+    ahead, aside, behind = (three & np.isclose(np.abs(bearings), b) for b in (0.0, np.pi / 2, np.pi))
+    assert costs[ahead][0] < costs[aside].min() < costs[behind][0]
+    # a 3 m drive straight ahead and a 1 m one both leave the rest of the straight way: (nearly) a tie
+    one_ahead = np.isclose(np.hypot(*table.T), 1.0) & np.isclose(bearings, 0.0)
+    assert costs[one_ahead][0] == pytest.approx(costs[ahead][0], rel=0.02)

@@ -12,7 +12,14 @@ from diana_lab.config import ConfigError, compose, validate
 from diana_lab.config.run import ImitationConfig
 from diana_lab.tracking import Tracker
 from diana_lab.training.envs import env_config, make_env
-from diana_lab.training.imitation import LABEL_KEY, ExpertLabels, imitate, make_expert
+from diana_lab.training.imitation import (
+    CANDIDATES_KEY,
+    LABEL_KEY,
+    ExpertLabels,
+    imitate,
+    make_expert,
+    soft_targets,
+)
 
 from .helpers import ALGO_TINY, TINY, run_in_process, runs, store_args
 
@@ -49,16 +56,13 @@ def test_labels_are_the_oracles_action_and_can_be_switched_off(expert):
 def _imitate(seed: int, steps: int, epochs: int, extra: list[str] | None = None, **imitation):
     """A small PPO policy on flat ground after 3 DAgger iterations: ``(model, venv, cfg, result)``."""
     groups = _groups(extra)
-    venv = VecNormalize(
-        DummyVecEnv([lambda: make_env(groups, expert=ImitationConfig(enabled=True)) for _ in range(2)]),
-        norm_reward=False,
-    )
+    settings = {"iterations": 3, "learning_rate": 3e-3, **imitation}
+    cfg = ImitationConfig(enabled=True, steps_per_iteration=steps, epochs=epochs, **settings)
+    venv = VecNormalize(DummyVecEnv([lambda: make_env(groups, expert=cfg) for _ in range(2)]), norm_reward=False)
     venv.seed(seed)
     overrides = [*FLAT, *(extra or []), "algo=ppo", "algo.net_arch=[32]", "algo.extractor.cnn_channels=[4]"]
     algo = validate(compose(overrides), ["algo"])
     model = build_model(algo["algo"], venv, seed=seed)
-    settings = {"iterations": 3, "learning_rate": 3e-3, **imitation}
-    cfg = ImitationConfig(enabled=True, steps_per_iteration=steps, epochs=epochs, **settings)
     return model, venv, cfg, imitate(model, venv, cfg, seed=seed, tracker=Tracker())
 
 
@@ -128,6 +132,66 @@ def test_behaviour_cloning_of_discrete_labels_fits_a_categorical_policy():
     venv.close()
 
 
+def test_soft_targets_share_the_label_among_near_ties_by_their_cost():
+    inf = np.inf
+    costs = np.array([[10.0, 10.0, 10.5, inf, 12.0], [inf, inf, inf, inf, inf], [3.0, 2.0, 1.0, 0.0, inf]])
+    actions = np.array([0, 2, 3])
+    p = soft_targets(costs, actions, temperature=0.5)
+    assert p.shape == costs.shape and p.dtype == np.float32
+    np.testing.assert_allclose(p.sum(axis=1), 1.0, rtol=1e-6)
+    assert p[0, 0] == pytest.approx(p[0, 1]) and p[0, 0] / p[0, 2] == pytest.approx(np.e, rel=1e-5)
+    assert p[0, 3] == 0.0 and p[2, 4] == 0.0  # no way, no share
+    np.testing.assert_array_equal(p[1], [0, 0, 1, 0, 0])  # no plan: the expert's action alone
+    assert list(np.argsort(-p[2]))[:4] == [3, 2, 1, 0]
+    sharp = soft_targets(costs, actions, temperature=0.05)
+    assert sharp[0, 2] < p[0, 2] and sharp[0, :2].sum() > 0.99  # colder: nearer the expert's one choice
+
+
+def test_candidate_costs_travel_with_each_label_and_the_label_costs_the_least():
+    cfg = ImitationConfig(enabled=True, label_temperature=0.25)
+    env = make_env(_groups(["action_space=discrete"]), expert=cfg)
+    assert env.candidate_costs
+    _, info = env.reset(seed=3)
+    for _ in range(5):
+        costs, label = info[CANDIDATES_KEY], int(info[LABEL_KEY])
+        assert costs.shape == (env.action_space.n,) and costs.dtype == np.float32
+        assert np.isfinite(costs).sum() > env.action_space.n // 2  # open flat ground: most candidates have a way
+        assert costs[label] == np.min(costs)
+        _, _, terminated, truncated, info = env.step(label)
+        if terminated or truncated:
+            break
+    env.close()
+    with pytest.raises(ValueError, match=r"train\.imitation\.label_temperature"):
+        make_env(_groups(), expert=cfg)  # a continuous action space has no candidates to share a label
+
+
+def test_dagger_with_soft_labels_fits_the_experts_cost_ranking():
+    """The fitted policy's probabilities follow the expert's candidate costs on states it was not trained on:
+    its most probable candidate is far cheaper than chance, and the cross-entropy falls towards the labels'
+    own entropy."""
+    discrete = ["action_space=discrete"]
+    model, venv, cfg, result = _imitate(
+        seed=0, steps=256, epochs=20, extra=discrete, iterations=2, beta_decay=1.0, label_temperature=0.25
+    )
+    losses = [row["loss"] for row in result.history]
+    assert losses[-1] < losses[0] < np.log(48)
+    env = make_env(_groups(discrete), expert=cfg)
+    obs, info = env.reset(seed=123)
+    regret, chance = [], []
+    for _ in range(60):
+        costs = info[CANDIDATES_KEY].astype(np.float64)
+        finite = np.isfinite(costs)
+        pred, _ = model.predict(venv.normalize_obs({k: v[None] for k, v in obs.items()}), deterministic=True)
+        regret.append(costs[int(pred[0])] - costs[finite].min() if finite[int(pred[0])] else 10.0)
+        chance.append(np.mean(costs[finite] - costs[finite].min()))
+        obs, _, terminated, truncated, info = env.step(int(info[LABEL_KEY]))
+        if terminated or truncated:
+            obs, info = env.reset()
+    assert np.mean(regret) < 0.25 * np.mean(chance)
+    env.close()
+    venv.close()
+
+
 def test_imitated_policy_drives_to_the_goal_on_flat_ground():
     from diana_lab.evaluation import SB3Policy, make_suite, run_suite, summarize
 
@@ -169,6 +233,7 @@ def test_runner_logs_the_imitation_stage(tmp_path, capsys):
         ("train.imitation.expert=human", "train.imitation.expert"),
         ("train.imitation.knowledge_radius=0", "train.imitation.knowledge_radius"),
         ("train.imitation.fit_threads=-1", "train.imitation.fit_threads"),
+        ("train.imitation.label_temperature=-0.1", "train.imitation.label_temperature"),
     ],
 )
 def test_bad_imitation_config_names_the_key(override, key):
