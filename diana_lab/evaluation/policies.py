@@ -23,6 +23,8 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
+from diana_lab.envs.rover_nav import GOAL_KEYS
+
 __all__ = [
     "GoalBearing",
     "Policy",
@@ -111,8 +113,10 @@ class GoalBearing:
         lower index)."""
         if self._bearings is None:
             raise RuntimeError("GoalBearing.ranking: call reset(env) first (every episode), as the evaluation does")
-        g = np.asarray(obs["goal"], dtype=np.float64).reshape(-1)
-        bearing = np.arctan2(g[1], g[2]) + (np.arctan2(g[5], g[6]) if self._world_frame else 0.0)
+        g = dict(zip(GOAL_KEYS, np.asarray(obs["goal"], dtype=np.float64).reshape(-1), strict=True))
+        bearing = np.arctan2(g["sin_heading_error"], g["cos_heading_error"])
+        if self._world_frame:
+            bearing += np.arctan2(g["sin_yaw"], g["cos_yaw"])
         gap = np.abs(np.angle(np.exp(1j * (self._bearings - bearing))))
         return np.lexsort((-self._lengths, np.round(gap, 9))).astype(np.int64)
 
