@@ -15,13 +15,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+from diana_lab.envs import GOAL_KEYS  # free of imports: the runtime stays light of the simulator
+
 __all__ = ["FORMAT", "ActionSpec", "EncodingSpec", "PolicySpec", "SensorSpec", "sidecar_path"]
 
 FORMAT = "diana_lab.deploy/1"  # bump when a field changes meaning; the runtime refuses other formats
 SENSOR_TYPES = ("depth_camera", "lidar3d")
 ENCODINGS = ("depth_image", "elevation_map", "points")
 ACTION_SHAPES = ("square", "circle", "discrete")
-GOAL_KEYS = ("distance", "sin_heading_error", "cos_heading_error", "roll", "pitch", "sin_yaw", "cos_yaw")
 SENSOR_FRAME = "body frame of the sensor: x forward (optical axis), y left, z up"
 
 

@@ -31,7 +31,6 @@ from diana_lab.sim.state import WaypointResult
 from diana_lab.sim.world import World
 
 TERMINAL = {"collision", "tipover", "out_of_bounds", "sim_error"}
-GOAL_KEYS = ("distance", "sin_heading_error", "cos_heading_error", "roll", "pitch", "sin_yaw", "cos_yaw")
 TILT_LIMIT_DEG = 15.0  # for the time-over-15-degrees statistic
 
 

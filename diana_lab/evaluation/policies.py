@@ -23,7 +23,7 @@ from typing import Any, Protocol, runtime_checkable
 import gymnasium as gym
 import numpy as np
 
-from diana_lab.envs.rover_nav import GOAL_KEYS
+from diana_lab.envs import GOAL_KEYS
 
 __all__ = [
     "GoalBearing",

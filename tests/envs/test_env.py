@@ -174,6 +174,24 @@ def test_fixed_episode_through_reset_options():
         env.reset(options={"begin": (0.0, 0.0)})
 
 
+def test_goal_vector_follows_the_named_layout():
+    """GOAL_KEYS is what the deploy runtime and the rule-based policies read the goal vector by."""
+    from diana_lab.envs import GOAL_KEYS
+
+    env = make(world="hills")
+    obs, info = env.reset(seed=3, options={"start": (-4.0, 2.0), "goal": (9.0, -6.0), "yaw": 2.0})
+    g = dict(zip(GOAL_KEYS, obs["goal"].astype(np.float64), strict=True))
+    est = env.pose_estimate
+    dx, dy = 9.0 - est.xy[0], -6.0 - est.xy[1]
+    error = math.atan2(dy, dx) - est.yaw
+    assert g["distance"] * env.episode_cfg.distance_scale == pytest.approx(info["distance_to_goal"], rel=1e-5)
+    heading = (g["sin_heading_error"], g["cos_heading_error"])
+    assert heading == pytest.approx((math.sin(error), math.cos(error)), abs=1e-5)
+    assert (g["sin_yaw"], g["cos_yaw"]) == pytest.approx((math.sin(est.yaw), math.cos(est.yaw)), abs=1e-5)
+    assert (g["roll"], g["pitch"]) == pytest.approx((est.roll / (math.pi / 2), est.pitch / (math.pi / 2)), abs=1e-5)
+    assert max(abs(g["roll"]), abs(g["pitch"])) > 1e-3, "the start should be on a slope, so roll/pitch mean something"
+
+
 def test_bad_actions_raise_a_clear_error():
     env = make()
     env.reset(seed=0)
