@@ -18,6 +18,7 @@ Without ``diana_lab.deploy`` or onnxruntime both keys are null with a note sayin
 from __future__ import annotations
 
 import importlib.util
+import math
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,20 @@ DETOUR_GOAL_M = 20.0  # the goal this far from each pose (the suite's goals lie 
 DETOUR_SEEN_M = 30.0  # half-width of the square of true ground the shield's map holds around each pose
 HAZCAM_KEYS = ("hazcam_decision_ms_p50", "hazcam_decision_ms_p99")
 SITEMAP_KEYS = ("sitemap_decision_ms_p50", "sitemap_decision_ms_p99")
+GOAL_MARGIN_M = 1.0  # goals this far inside the map's edge at least (the suite's keep the rover's radius + margin)
 MISSING_NOTE = "not measured: the deployment runtime (diana_lab.deploy, onnxruntime) is not installed"
+
+
+def goal_on_map(terrain: Any, xy: np.ndarray, bearing: float, distance: float = DETOUR_GOAL_M) -> np.ndarray:
+    """The point ``distance`` m from ``xy`` on the bearing nearest ``bearing`` (5 deg steps either way) that lies
+    ``GOAL_MARGIN_M`` inside the map. A goal off the map would time searches the suite never asks for (its goals
+    all lie on the map), and the Navigator warns of such goals when it holds a site map."""
+    for k in range(73):  # 0, +5, -5, +10, -10, ... +180 deg
+        a = bearing + math.radians(5.0 * ((k + 1) // 2) * (1 if k % 2 else -1))
+        goal = np.asarray(xy, dtype=np.float64)[:2] + distance * np.array([math.cos(a), math.sin(a)])
+        if terrain.contains(goal[0], goal[1], GOAL_MARGIN_M):
+            return goal
+    raise ValueError(f"no point {distance:g} m from ({xy[0]:.1f}, {xy[1]:.1f}) lies on the map")
 
 
 def _p50_p99(
@@ -161,7 +175,8 @@ def detour_latency(ctx: BenchContext) -> list[Figure]:
     spot, and decisions from one spot do not count towards a stall. The shield is the reference preset's, its
     map the world's true ground sampled every 0.1 m over a square of ``DETOUR_SEEN_M`` m around each of the
     bench's poses (every cell known: the search's largest map), the goal ``DETOUR_GOAL_M`` m away on a random
-    bearing, the stall forced; the figures are the medians over the repeats of each run's p50 and p99."""
+    bearing (the nearest that keeps it on the map), the stall forced; the figures are the medians over the
+    repeats of each run's p50 and p99."""
     import time
 
     from diana_lab.candidates import candidate_offsets, turned
@@ -185,8 +200,7 @@ def detour_latency(ctx: BenchContext) -> list[Figure]:
         xy = position[:2]
         pts = np.stack([gx.ravel() + xy[0], gy.ravel() + xy[1]])
         z = terrain.height_at(pts)
-        a = rng.uniform(-np.pi, np.pi)
-        goal = xy + DETOUR_GOAL_M * np.array([np.cos(a), np.sin(a)])
+        goal = goal_on_map(terrain, xy, rng.uniform(-np.pi, np.pi))
         cases.append((np.column_stack([pts.T, z]), xy, float(rpy[2]), goal))
 
     def run() -> dict[str, float]:
@@ -223,8 +237,9 @@ def hazcam_latency(ctx: BenchContext) -> list[Figure]:
     cameras' frames mapped (:meth:`Navigator.map_for_shield`, in the body frame as a rover hands them over) and
     :meth:`Navigator.next_waypoint` (encoding, inference, the shield's checks with the relief check). The frames
     are cast in the bench's world from its poses, each decision 0.3 m on from the last along the heading (eight
-    a pose, the map growing as on a drive); the lidar cloud is the synthetic flat-ground one of
-    ``policy_latency``. The figures are the medians over the repeats of each run's p50 and p99."""
+    a pose, the map growing as on a drive), the goal ``DETOUR_GOAL_M`` m ahead (on the nearest bearing that keeps
+    it on the map); the lidar cloud is the synthetic flat-ground one of ``policy_latency``. The figures are the
+    medians over the repeats of each run's p50 and p99."""
     return _camera_decisions(ctx, "reference_hazcams", HAZCAM_KEYS)
 
 
@@ -267,7 +282,7 @@ def _camera_decisions(ctx: BenchContext, preset: str, keys: tuple[str, str]) -> 
                 pos = np.asarray(position, dtype=np.float64) + 0.3 * k * ahead
                 frames = cameras.body_frames(pos, rpy)
                 steps.append(((pos[0], pos[1], pos[2], float(rpy[0]), float(rpy[1]), yaw), frames))
-            goal = np.asarray(position, dtype=np.float64)[:2] + 20.0 * ahead[:2]
+            goal = goal_on_map(ctx.world.terrain, np.asarray(position), yaw)
             cases.append((steps, goal))
 
         def run() -> dict[str, float]:

@@ -6,6 +6,7 @@ the bookkeeping (targets, machine, versions) are what benchmarks/README.md docum
 
 import json
 
+import numpy as np
 import pytest
 
 from diana_lab.benchmarks import run, suite
@@ -109,6 +110,26 @@ def test_the_site_map_figure_times_the_same_decisions_with_the_worlds_site_map(t
     assert 0 < p50["value"] <= p99["value"] and p50["batch"] == "32 decisions"
     assert "+experiment=reference_sitemap" in p50["note"] and "site map" in p50["note"]
     assert p50["returns_per_decision"] > 10_000
+
+
+def test_the_decision_figures_goals_lie_on_the_map(mars_yard):
+    """The full run's site-map figure once timed goals 20 m ahead off the map's edge (the Navigator warned):
+    searches the suite never asks for. The goal keeps its distance and turns to the nearest bearing on the map."""
+    from diana_lab.benchmarks.deploy import DETOUR_GOAL_M, GOAL_MARGIN_M, goal_on_map
+
+    terrain = mars_yard.terrain
+    inside = np.array([0.0, 0.0])
+    assert goal_on_map(terrain, inside, 0.3) == pytest.approx(DETOUR_GOAL_M * np.array([np.cos(0.3), np.sin(0.3)]))
+    edge = np.array([terrain.size_x / 2 - 3.0, 0.0])  # facing the east edge, 3 m from it
+    goal = goal_on_map(terrain, edge, 0.0)
+    assert np.hypot(*(goal - edge)) == pytest.approx(DETOUR_GOAL_M)
+    assert terrain.contains(goal[0], goal[1], GOAL_MARGIN_M) and goal[0] < terrain.size_x / 2 - GOAL_MARGIN_M
+    turned = np.degrees(np.arctan2(goal[1] - edge[1], goal[0] - edge[0]))
+    assert abs(turned) == pytest.approx(85.0)  # the first 5-degree step with 20 cos(a) <= 3 m - the 1 m margin
+    rng = np.random.default_rng(0)
+    for xy in rng.uniform(-terrain.size_x / 2 + 1, terrain.size_x / 2 - 1, size=(200, 2)):
+        g = goal_on_map(terrain, xy, rng.uniform(-np.pi, np.pi))
+        assert terrain.contains(g[0], g[1], GOAL_MARGIN_M)
 
 
 def test_every_documented_key_is_registered_once():
