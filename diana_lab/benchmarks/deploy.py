@@ -44,12 +44,13 @@ def goal_on_map(terrain: Any, xy: np.ndarray, bearing: float, distance: float = 
     """The point ``distance`` m from ``xy`` on the bearing nearest ``bearing`` (5 deg steps either way) that lies
     ``GOAL_MARGIN_M`` inside the map. A goal off the map would time searches the suite never asks for (its goals
     all lie on the map), and the Navigator warns of such goals when it holds a site map."""
+    here = np.asarray(xy, dtype=np.float64)[:2]
     for k in range(73):  # 0, +5, -5, +10, -10, ... +180 deg
         a = bearing + math.radians(5.0 * ((k + 1) // 2) * (1 if k % 2 else -1))
-        goal = np.asarray(xy, dtype=np.float64)[:2] + distance * np.array([math.cos(a), math.sin(a)])
+        goal = here + distance * np.array([math.cos(a), math.sin(a)])
         if terrain.contains(goal[0], goal[1], GOAL_MARGIN_M):
             return goal
-    raise ValueError(f"no point {distance:g} m from ({xy[0]:.1f}, {xy[1]:.1f}) lies on the map")
+    raise ValueError(f"no point {distance:g} m from ({here[0]:.1f}, {here[1]:.1f}) lies on the map")
 
 
 def _p50_p99(
