@@ -226,12 +226,20 @@ class HeightMemory:
 
     @staticmethod
     def to_world(levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:
-        """Points in the heading-aligned, gravity-up frame at the rover base -> the world frame (same dtype)."""
+        """Points in the heading-aligned, gravity-up frame at the rover base -> the world frame (same dtype).
+
+        The rounding is spelt out, whatever types the caller's position holds (a simulator's float64 array, a
+        rover's tuple of Python floats): the turn in the points' precision, the shift in float64, then one
+        rounding back; the batched env's compiled encoder does the same, so all three place a return in the same
+        cell."""
         c, s = math.cos(yaw), math.sin(yaw)
+        dtype = levelled.dtype
+        c, s = dtype.type(c), dtype.type(s)
+        x, y, z = (np.float64(v) for v in (position[0], position[1], position[2]))
         world = np.empty_like(levelled)
-        world[:, 0] = c * levelled[:, 0] - s * levelled[:, 1] + position[0]
-        world[:, 1] = s * levelled[:, 0] + c * levelled[:, 1] + position[1]
-        world[:, 2] = levelled[:, 2] + position[2]
+        world[:, 0] = (c * levelled[:, 0] - s * levelled[:, 1]).astype(np.float64) + x
+        world[:, 1] = (s * levelled[:, 0] + c * levelled[:, 1]).astype(np.float64) + y
+        world[:, 2] = levelled[:, 2].astype(np.float64) + z
         return world
 
     def fuse(self, levelled: np.ndarray, position: np.ndarray, yaw: float) -> np.ndarray:

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["leveling_matrix", "pitch_matrix", "rpy_matrix"]
+__all__ = ["level_points", "leveling_matrix", "pitch_matrix", "rpy_matrix"]
 
 
 def rpy_matrix(rpy: Sequence[float] | np.ndarray) -> np.ndarray:
@@ -46,3 +46,13 @@ def leveling_matrix(rpy: Sequence[float] | np.ndarray) -> np.ndarray:
     The elevation map is built in this frame so that a tilted rover still sees level ground as level.
     """
     return rpy_matrix((rpy[0], rpy[1], 0.0))
+
+
+def level_points(points: np.ndarray, roll: float, pitch: float) -> np.ndarray:
+    """float32 rover-frame ``points (N, 3)`` turned into the heading frame (:func:`leveling_matrix`).
+
+    The products are summed in float64 and rounded once to float32: a float32 matrix product's result depends on
+    the BLAS kernel of the host (with or without fused multiply-adds), this one does not, so every encoder of the
+    same points (the simulator's, the batched env's compiled one, the rover's) bins them into the same cells."""
+    m = leveling_matrix((roll, pitch, 0.0))
+    return (np.asarray(points, dtype=np.float64) @ m.T).astype(np.float32)

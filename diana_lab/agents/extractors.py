@@ -20,6 +20,7 @@ from torch import nn
 from diana_lab.agents.cost_to_go import CostToGoNet
 from diana_lab.agents.encoders import ImageCNN, PointNet, mlp
 from diana_lab.agents.planner import ValueIterationNet
+from diana_lab.agents.strips import CandidateStrips
 from diana_lab.config.validation import ConfigError
 
 __all__ = ["SENSOR_KEYS", "RoverExtractor"]
@@ -56,11 +57,12 @@ class RoverExtractor(BaseFeaturesExtractor):
         goal_hidden: widths of the goal MLP.
         cnn_channels, cnn_pool: the image CNN's convolution widths and pooled grid (rows, cols).
         sensor_features: output width of every sensor encoder.
-        elevation_encoder: ``"cnn"``, ``"mlp"`` (flattened grid), ``"vin"`` or ``"cost_to_go"`` for
-            ``elevation_map``.
+        elevation_encoder: ``"cnn"``, ``"mlp"`` (flattened grid), ``"strips"``, ``"vin"`` or ``"cost_to_go"``
+            for ``elevation_map``.
         point_hidden: widths of PointNet's shared per-point MLP.
         planner: :class:`ValueIterationNet` arguments besides the map's shape (``elevation_encoder="vin"``).
         cost_to_go: :class:`CostToGoNet` arguments besides the map's shape (``elevation_encoder="cost_to_go"``).
+        strips: :class:`CandidateStrips` arguments besides the map's shape (``elevation_encoder="strips"``).
     """
 
     def __init__(
@@ -74,6 +76,7 @@ class RoverExtractor(BaseFeaturesExtractor):
         point_hidden: Sequence[int] = (64, 128),
         planner: dict | None = None,
         cost_to_go: dict | None = None,
+        strips: dict | None = None,
     ) -> None:
         if not isinstance(observation_space, gym.spaces.Dict):
             raise ConfigError(f"algo.extractor: expected a Dict observation space, got {observation_space}")
@@ -84,6 +87,14 @@ class RoverExtractor(BaseFeaturesExtractor):
             if key == "goal":
                 encoders[key] = mlp(int(np.prod(shape)), goal_hidden)
                 dims[key] = goal_hidden[-1]
+            elif key == "elevation_map" and elevation_encoder == "strips":
+                if len(shape) != 3 or not strips:
+                    raise ConfigError(
+                        "algo.extractor: the strips encoder needs a (C, H, W) map and the map's geometry and the "
+                        f"action candidates, got shape {shape} and strips={strips!r}"
+                    )
+                encoders[key] = CandidateStrips(shape[1], shape[2], **strips)
+                dims[key] = encoders[key].out_dim
             elif key == "elevation_map" and elevation_encoder in ("vin", "cost_to_go"):
                 encoders[key] = _planning_encoder(elevation_encoder, shape, planner, cost_to_go, sensor_features)
                 dims[key] = encoders[key].out_dim
@@ -92,8 +103,14 @@ class RoverExtractor(BaseFeaturesExtractor):
                     raise ConfigError(f"algo.extractor: '{key}' must be (C, H, W), got shape {shape}")
                 encoders[key] = ImageCNN(shape[0], cnn_channels, sensor_features, (cnn_pool[0], cnn_pool[1]))
                 dims[key] = sensor_features
-            elif key == "elevation_map":
+            elif key == "elevation_map" and elevation_encoder == "mlp":
                 encoders[key] = nn.Sequential(nn.Flatten(), mlp(int(np.prod(shape)), [256, sensor_features]))
+            elif key == "elevation_map":
+                raise ConfigError(
+                    f"algo.extractor.elevation_encoder: {elevation_encoder!r} is not an encoder of the map here "
+                    "(auto is decided by diana_lab.agents.factory.build_model); expected cnn, mlp, strips, vin or "
+                    "cost_to_go"
+                )
                 dims[key] = sensor_features
             elif key == "points":
                 if len(shape) != 2:
@@ -118,7 +135,7 @@ class RoverExtractor(BaseFeaturesExtractor):
         parts = []
         for key, encoder in self.encoders.items():
             x = observations[key]
-            if isinstance(encoder, (ValueIterationNet, CostToGoNet)):
+            if isinstance(encoder, (ValueIterationNet, CostToGoNet, CandidateStrips)):
                 parts.append(encoder(x, observations["goal"].flatten(1)))
             else:
                 parts.append(encoder(x.flatten(1) if key == "goal" else x))

@@ -21,6 +21,7 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from diana_lab.agents.cost_to_go import init_policy_head
 from diana_lab.agents.extractors import RoverExtractor
+from diana_lab.agents.strips import init_logit_head
 from diana_lab.config.algo import NON_SB3_KEYS, AlgoConfig, check_action_space
 from diana_lab.config.validation import ConfigError
 
@@ -28,7 +29,10 @@ __all__ = ["algo_class", "build_model", "load_model", "policy_kwargs"]
 
 
 def policy_kwargs(
-    cfg: AlgoConfig, n_actions: int | None = None, candidates: np.ndarray | None = None
+    cfg: AlgoConfig,
+    n_actions: int | None = None,
+    candidates: np.ndarray | None = None,
+    env_cfg: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     """``MultiInputPolicy`` kwargs: our extractor, the head sizes and any extra ``algo.policy_kwargs``.
 
@@ -76,8 +80,60 @@ def policy_kwargs(
         # the logits read the candidates' features through one linear layer (init_policy_head); the value
         # head keeps algo.net_arch
         kwargs["net_arch"] = {"pi": [], "vf": list(cfg.net_arch)}
+    if ext.elevation_encoder == "strips":
+        kwargs["features_extractor_kwargs"]["strips"] = strips_kwargs(cfg, env_cfg)
+        # the logits are the encoder's (init_logit_head); the value head keeps algo.net_arch
+        kwargs["net_arch"] = {"pi": [], "vf": list(cfg.net_arch)}
     kwargs.update(dict(cfg.policy_kwargs))
     return kwargs
+
+
+def env_groups_of(env: VecEnv) -> dict[str, Any] | None:
+    """The typed env groups of a VecEnv's first env (``RoverNavEnv.cfg``), or ``None`` for an env without them."""
+    try:
+        return env.get_attr("cfg", [0])[0]
+    except AttributeError:
+        return None
+
+
+def resolve_encoder(cfg: AlgoConfig, env_cfg: dict[str, Any] | None) -> AlgoConfig:
+    """``cfg`` with ``algo.extractor.elevation_encoder: auto`` decided for the env: ``strips`` where an
+    ``elevation_map`` meets a discrete action space in the rover's frame (what it scores), ``cnn`` otherwise."""
+    if cfg.extractor.elevation_encoder != "auto":
+        return cfg
+    strips = False
+    if env_cfg is not None:
+        actions, sensor = env_cfg["action_space"], env_cfg["sensor"]
+        strips = actions.shape == "discrete" and actions.frame == "rover" and sensor.encoding == "elevation_map"
+    extractor = dataclasses.replace(cfg.extractor, elevation_encoder="strips" if strips else "cnn")
+    return dataclasses.replace(cfg, extractor=extractor)
+
+
+def strips_kwargs(cfg: AlgoConfig, env_cfg: dict[str, Any] | None) -> dict[str, Any]:
+    """:class:`~diana_lab.agents.strips.CandidateStrips` arguments: ``algo.extractor.strips`` and the geometry of
+    the env's map and candidates (``env_cfg``: the env's typed groups)."""
+    actions = env_cfg["action_space"] if env_cfg else None
+    sensor = env_cfg["sensor"] if env_cfg else None
+    if actions is None or actions.shape != "discrete" or actions.frame != "rover":
+        raise ConfigError(
+            "algo.extractor.elevation_encoder=strips scores a discrete action space's candidates in the rover's "
+            "frame: use action_space=discrete with action_space.frame=rover"
+        )
+    if sensor is None or sensor.encoding != "elevation_map":
+        raise ConfigError("algo.extractor.elevation_encoder=strips reads sensor.encoding=elevation_map")
+    m, s = sensor.elevation_map, cfg.extractor.strips
+    return {
+        "cell_size": float(m.cell_size),
+        "extent_forward": float(m.extent_forward),
+        "extent_side": float(m.extent_side),
+        "headings": int(actions.headings),
+        "distances": [float(d) for d in actions.distances],
+        "lateral": [float(v) for v in s.lateral],
+        "step": float(s.step),
+        "reach": float(s.reach),
+        "hidden": int(s.hidden),
+        "context": int(s.context),
+    }
 
 
 def _action_noise(cfg: AlgoConfig, n_actions: int) -> NormalActionNoise | None:
@@ -99,6 +155,8 @@ def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", ve
     """
     if isinstance(env.action_space, spaces.Discrete):
         check_action_space(cfg, "discrete")
+    env_cfg = env_groups_of(env)
+    cfg = resolve_encoder(cfg, env_cfg)
     node = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in NON_SB3_KEYS}
     node.update({"_target_": cfg._target_, "_partial_": True, "_convert_": "all"})
     make = instantiate(node)
@@ -109,9 +167,11 @@ def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", ve
     candidates, n = None, None
     if cfg.extractor.elevation_encoder == "cost_to_go" and isinstance(env.action_space, spaces.Discrete):
         candidates, n = env.get_attr("mapping", [0])[0].candidates, int(env.action_space.n)
-    model = make(
-        env=env, policy_kwargs=policy_kwargs(cfg, n, candidates), seed=seed, device=device, verbose=verbose, **extra
-    )
+    kwargs = policy_kwargs(cfg, n, candidates, env_cfg)
+    model = make(env=env, policy_kwargs=kwargs, seed=seed, device=device, verbose=verbose, **extra)
+    if cfg.extractor.elevation_encoder == "strips":
+        extractor = model.policy.features_extractor
+        init_logit_head(model.policy.action_net, extractor.offset("elevation_map"), int(env.action_space.n))
     if cfg.extractor.elevation_encoder == "cost_to_go":
         extractor = model.policy.features_extractor
         c = cfg.extractor.cost_to_go

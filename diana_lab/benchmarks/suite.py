@@ -16,7 +16,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 # importing the measurement modules registers them (in this order: the order of the table)
-from diana_lab.benchmarks import deploy, dynamics, envs, sensing, training  # noqa: F401
+from diana_lab.benchmarks import batched, deploy, dynamics, envs, sensing, training  # noqa: F401
 from diana_lab.benchmarks.core import MEASUREMENTS, BenchContext, Figure, flag, select
 from diana_lab.benchmarks.machine import library_versions, load_average, machine_info, pin_threads
 from diana_lab.benchmarks.report import SCHEMA_VERSION, figures_table, write_json
@@ -34,13 +34,15 @@ ORDER = (
     "env_steps_kinematic",
     "env_steps_physics",
     "vec_env_scaling",
-    "train_fps_ppo",
+    "batched_env_steps",
+    "train_fps",
     "expert_label_ms",
     "policy_latency",
     "detour_latency",
     "hazcam_latency",
     "sitemap_latency",
     "rss_per_env",
+    "rss_per_rover",
 )
 ANCHORS = {
     "gazebo_realtime_factor": 1.0,  # DIANA-Gym simulated in Gazebo at real time

@@ -24,7 +24,7 @@ from diana_lab.config.validation import (
     positive_int,
 )
 
-ELEVATION_ENCODERS = ("cnn", "mlp", "vin", "cost_to_go")
+ELEVATION_ENCODERS = ("auto", "cnn", "mlp", "strips", "vin", "cost_to_go")
 GEOMETRY_KEYS = ("cell_size", "extent_forward", "extent_side", "distance_scale")
 
 # algo keys that configure the runner / policy rather than being constructor arguments of the SB3 class
@@ -135,6 +135,29 @@ class CostToGoConfig(_MapGeometry):
 
 
 @dataclass
+class StripsConfig:
+    """The per-heading strip network of :mod:`diana_lab.agents.strips` (``elevation_encoder: strips``); its map
+    geometry and candidates come from ``sensor.elevation_map`` and ``action_space`` (set by the factory)."""
+
+    lateral: list[float] = field(default_factory=lambda: [-0.25, 0.0, 0.25])  # the track's lines (m, left +)
+    step: float = 0.25  # spacing of a line's points (m)
+    reach: float = 4.0  # how far out along the heading (m)
+    hidden: int = 64  # width of the per-heading network
+    context: int = 32  # channels of the convolution over neighbouring headings
+
+    def __post_init__(self) -> None:
+        key = "algo.extractor.strips"
+        if not self.lateral:
+            raise ConfigError(f"{key}.lateral: expected at least one offset (m), e.g. [0.0]")
+        positive(f"{key}.step", self.step)
+        positive(f"{key}.reach", self.reach)
+        if self.reach < self.step:
+            raise ConfigError(f"{key}.reach: expected at least {key}.step ({self.step}), got {self.reach}")
+        positive_int(f"{key}.hidden", self.hidden)
+        positive_int(f"{key}.context", self.context)
+
+
+@dataclass
 class ExtractorConfig:
     """The features extractor of :mod:`diana_lab.agents.extractors`: one encoder per observation key.
 
@@ -146,10 +169,13 @@ class ExtractorConfig:
     cnn_channels: list[int] = field(default_factory=lambda: [16, 32, 32])  # depth image / elevation map CNN
     cnn_pool: list[int] = field(default_factory=lambda: [3, 4])  # adaptive pooling grid (rows, cols) after it
     sensor_features: int = 128
-    # cnn | mlp | vin (a value-iteration planning network, see ``planner``) | cost_to_go (a learnt cost map
-    # and a shortest-path backup scoring the discrete action space's candidates, see ``cost_to_go``)
-    elevation_encoder: str = "cnn"
+    # auto (strips where the action space is discrete in the rover's frame, else cnn) | cnn | mlp | strips (one
+    # network scoring every candidate heading's strip of the map, see ``strips``) | vin (a value-iteration
+    # planning network, see ``planner``) | cost_to_go (a learnt cost map and a shortest-path backup scoring the
+    # discrete action space's candidates, see ``cost_to_go``)
+    elevation_encoder: str = "auto"
     point_hidden: list[int] = field(default_factory=lambda: [64, 128])  # PointNet shared per-point MLP
+    strips: StripsConfig = field(default_factory=StripsConfig)
     planner: PlannerConfig = field(default_factory=PlannerConfig)
     cost_to_go: CostToGoConfig = field(default_factory=CostToGoConfig)
 
@@ -188,7 +214,7 @@ class AlgoConfig:
         in_range("algo.gamma", self.gamma, 0.0, 1.0)
         _layers("algo.net_arch", self.net_arch)
         encoder = self.extractor.elevation_encoder
-        if encoder in ("vin", "cost_to_go") and self.normalize and "goal" in self.norm_obs_keys:
+        if encoder in ("vin", "cost_to_go", "strips") and self.normalize and "goal" in self.norm_obs_keys:
             raise ConfigError(
                 f"algo.normalize: the {encoder} encoder places the goal on its map from the raw goal vector, so 'goal' "
                 "cannot be normalised; set algo.normalize=false or drop 'goal' from algo.norm_obs_keys"

@@ -17,7 +17,7 @@ from diana_lab.config.validation import (
     positive_int,
 )
 
-VEC_ENVS = ("dummy", "subproc")
+VEC_ENVS = ("batched", "dummy", "subproc")
 # torch device strings SB3 accepts ("auto": cuda when available); checked here, not by torch deep in the run
 DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
 
@@ -96,7 +96,9 @@ class TrainConfig:
     # ("craters world.seed=7"); env i of the n_envs drives in [world, *worlds][i % (1 + len(worlds))], so one
     # policy meets every terrain in every rollout. Evaluation stays on ``world``.
     worlds: list[str] = field(default_factory=list)
-    vec_env: str = "dummy"  # dummy (one process) | subproc (one process per env)
+    # batched: every rover as arrays in one process, stepped by compiled calls (kinematic dynamics only);
+    # dummy: one RoverNavEnv after another in one process; subproc: one process per env
+    vec_env: str = "dummy"
     checkpoint_every: int = 20_000  # env steps between checkpoints; 0: only at the end and on interrupt
     resume: str | None = None  # an MLflow run id, a Hydra run dir or a checkpoint .zip
     log_interval: int = 1  # SB3 logger dumps: every N updates (on-policy) or N episodes (off-policy)
@@ -106,6 +108,9 @@ class TrainConfig:
     # 1: these networks are tiny, and a second OpenMP thread spin-waits against the env for the same cores
     # (a 16 x 12 convolution: 10 ms with 2 threads, 0.06 ms with 1, on a 2-core machine). 0: torch's default
     torch_threads: int = 1
+    # torch threads for the gradient updates between rollouts: the envs wait then, so their cores are free
+    # (0: every core this process may use); train.torch_threads applies again at the next rollout
+    update_threads: int = 0
     imitation: ImitationConfig = field(default_factory=ImitationConfig)
 
     def __post_init__(self) -> None:
@@ -127,6 +132,7 @@ class TrainConfig:
         non_negative_int("train.checkpoint_every", self.checkpoint_every)
         positive_int("train.log_interval", self.log_interval)
         non_negative_int("train.torch_threads", self.torch_threads)
+        non_negative_int("train.update_threads", self.update_threads)
         if not DEVICE.match(str(self.device)):
             raise ConfigError(
                 f"train.device: expected 'cpu', 'cuda', 'cuda:<index>', 'mps' or 'auto', got {self.device!r}"

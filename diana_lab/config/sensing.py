@@ -209,8 +209,13 @@ class Lidar3dConfig(SensorConfig):
         return max(1, round(360.0 / self.horizontal_resolution_deg))
 
 
-# the paper's 112 x 112 preset uses the camera schema under its own option name
+# the paper's 112 x 112 preset and the main command's lidar use their sensor's schema under their own option name
 register(
     "sensor",
-    {"depth_camera": DepthCameraConfig, "depth_camera_paper": DepthCameraConfig, "lidar3d": Lidar3dConfig},
+    {
+        "depth_camera": DepthCameraConfig,
+        "depth_camera_paper": DepthCameraConfig,
+        "lidar3d": Lidar3dConfig,
+        "lidar_map": Lidar3dConfig,
+    },
 )

@@ -24,10 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from diana_lab.deploy.geometry import SensorModel, leveling_matrix
+from diana_lab.deploy.geometry import SensorModel
 from diana_lab.deploy.inputs import Pose
 from diana_lab.deploy.spec import EncodingSpec, SensorSpec
 from diana_lab.height_memory import HeightMemory
+from diana_lab.rotations import level_points
 
 __all__ = ["CloudEncoder", "DepthImage", "ElevationMap", "Points", "make_cloud_encoder"]
 
@@ -141,7 +142,7 @@ class ElevationMap(CloudEncoder):
         rows, cols, clip = self.rows, self.cols, self.height_clip
         pts = self.visible_rover_points(points)
         if len(pts):
-            pts = pts @ leveling_matrix((pose.roll, pose.pitch, 0.0)).T.astype(np.float32)
+            pts = level_points(pts, pose.roll, pose.pitch)
         pts = self._filter(pts)
         self.fused_points = None
         if self.memory is not None:

@@ -28,7 +28,7 @@ from gymnasium import spaces
 from diana_lab.config.sensing import ElevationMapConfig, PointsConfig, SensorConfig
 from diana_lab.config.validation import ConfigError
 from diana_lab.height_memory import HeightMemory
-from diana_lab.rotations import leveling_matrix
+from diana_lab.rotations import level_points
 from diana_lab.sensing.frame import SensorFrame
 
 __all__ = [
@@ -122,7 +122,7 @@ class ElevationMapEncoder(Encoder):
         c, rows, cols = self.cfg, self.rows, self.cols
         pts = frame.points
         if len(pts):
-            pts = pts @ leveling_matrix(frame.rpy).T.astype(np.float32)
+            pts = level_points(pts, float(frame.rpy[0]), float(frame.rpy[1]))
         pts = self._filter(pts)
         if self.memory is not None:
             top = self.memory.fuse(pts, frame.position, float(frame.rpy[2]))

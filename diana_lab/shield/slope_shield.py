@@ -91,7 +91,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from diana_lab.height_memory import HeightMemory
-from diana_lab.rotations import leveling_matrix
+from diana_lab.rotations import level_points
 from diana_lab.shield.detour import Detour
 from diana_lab.shield.relief import ReliefLimits, relief_judgement
 from diana_lab.shield.settings import ShieldSettings
@@ -277,7 +277,7 @@ class SlopeShield:
         pts = np.asarray(points_rover, dtype=np.float32).reshape(-1, 3)
         if self.cfg.min_range > 0:
             pts = self.far_points(pts, pts, sensor_xyz)
-        levelled = pts @ leveling_matrix(rpy).T.astype(np.float32)
+        levelled = level_points(pts, float(rpy[0]), float(rpy[1]))
         self.observe(HeightMemory.to_world(levelled, position, float(rpy[2])), np.asarray(position)[:2])
 
     def far_points(

@@ -134,9 +134,25 @@ def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: Im
 
     ``expert``: label every step for imitation (see :func:`make_env`). With ``train.worlds``, env ``i`` drives in
     world ``i % (1 + len(train.worlds))`` of :func:`training_worlds`."""
-    vec_cls = SubprocVecEnv if train.vec_env == "subproc" else DummyVecEnv
     groups = env_config(cfg)
     worlds = training_worlds(cfg, train)
+    if train.vec_env == "batched":
+        from diana_lab.envs.batched import BatchedRoverEnv
+
+        make = None
+        if expert is not None:
+            from diana_lab.training.imitation import make_expert
+
+            if expert.cost_weight > 0 or expert.label_temperature > 0:
+                raise C.ConfigError(
+                    "train.imitation.cost_weight / label_temperature with train.vec_env=batched: the batched env "
+                    "labels the expert's action only; set them to 0 or use train.vec_env=dummy or subproc"
+                )
+            make = functools.partial(make_expert, expert)
+        venv = BatchedRoverEnv(groups, train.n_envs, worlds, [shared_world(w) for w in worlds], expert=make)
+        venv.seed(seed)
+        return venv
+    vec_cls = SubprocVecEnv if train.vec_env == "subproc" else DummyVecEnv
     factories = [
         functools.partial(_monitored, {**groups, "world": worlds[i % len(worlds)]}, expert, seed + i)
         for i in range(train.n_envs)

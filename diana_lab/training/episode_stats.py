@@ -38,7 +38,8 @@ class EpisodeStats(BaseCallback):
             for term, value in info.get("reward_terms", {}).items():
                 acc[term] = acc.get(term, 0.0) + float(value)
             if done:
-                self.episodes.append(acc)
+                # the batched env sums the terms itself and reports them once, at the episode's end
+                self.episodes.append(info.get("episode_reward_terms", acc))
                 self.outcomes.append(str(info.get("outcome", "timeout")))
                 self._running[i] = {}
                 self._new = True

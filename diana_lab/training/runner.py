@@ -65,6 +65,7 @@ from diana_lab.training.resume import (
 )
 from diana_lab.training.signals import InterruptCheck, interrupts_as_exceptions, unwrapped_interrupts
 from diana_lab.training.summary import TrainResult
+from diana_lab.training.threads import PhaseThreads
 
 __all__ = ["RUN_GROUPS", "train"]
 
@@ -245,7 +246,8 @@ class TrainingRun:
             self.run_dir / "best",
             on_eval=self.ctx.on_eval,
         )
-        cbs: list[BaseCallback] = [InterruptCheck(), EpisodeStats(), self.checkpoints, self.evaluator]
+        threads = PhaseThreads(self.train_cfg.torch_threads or None, self.train_cfg.update_threads)
+        cbs: list[BaseCallback] = [InterruptCheck(), threads, EpisodeStats(), self.checkpoints, self.evaluator]
         if self.train_cfg.progress_bar:
             self.progress = ProgressWithStats()
             cbs.append(self.progress)

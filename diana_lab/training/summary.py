@@ -54,6 +54,9 @@ def summary_frame(r: TrainResult) -> pd.DataFrame:
         ("episodes", "eval episodes"),
         ("success_rate", "eval success rate"),
         ("spl", "eval SPL"),
+        ("tipover_rate", "eval tip-over rate"),
+        ("stuck_rate", "eval stuck rate"),
+        ("timeout_rate", "eval timeout rate"),
         ("collision_rate", "eval collision rate"),
         ("mean_path_length_m", "eval path length (m)"),
     ):
