@@ -59,11 +59,17 @@ def task_overrides() -> list[str]:
     return [str(o) for o in OmegaConf.to_container(HydraConfig.get().overrides.task, resolve=False)]
 
 
+def full_error() -> bool:
+    """Whether the user asked for tracebacks: ``HYDRA_FULL_ERROR=1``, read as Hydra reads it (only ``1``: ``0``
+    or anything else is no)."""
+    return os.environ.get("HYDRA_FULL_ERROR") == "1"
+
+
 def report(exc: BaseException) -> None:
     """Print one paragraph about a user error (the first line of the message, wrapped)."""
     message = str(exc).strip() or type(exc).__name__
     print(f"error: {message}", file=sys.stderr)
-    if not os.environ.get("HYDRA_FULL_ERROR"):
+    if not full_error():
         print("(set HYDRA_FULL_ERROR=1 for the full traceback)", file=sys.stderr)
 
 
@@ -81,7 +87,7 @@ class OutputDirCheck(Callback):
 
     @staticmethod
     def _check(config: DictConfig, key: str) -> None:
-        if os.environ.get("HYDRA_FULL_ERROR"):
+        if full_error():
             return
         try:
             value = OmegaConf.select(config, key)
@@ -119,7 +125,7 @@ def hydra_app(
                 validate(cfg, [g for g in cfg if g in SCHEMAS], combinations)
                 return task(cfg)
             except (*USER_ERRORS, UserError) as exc:
-                if os.environ.get("HYDRA_FULL_ERROR"):
+                if full_error():
                     raise
                 report(exc)
                 sys.exit(EXIT_USER_ERROR)

@@ -17,7 +17,7 @@ from diana_lab.config.validation import (
     positive_int,
 )
 
-VEC_ENVS = ("batched", "dummy", "subproc")
+VEC_ENVS = ("auto", "batched", "dummy", "subproc")
 # torch device strings SB3 accepts ("auto": cuda when available); checked here, not by torch deep in the run
 DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
 
@@ -97,7 +97,8 @@ class TrainConfig:
     # policy meets every terrain in every rollout. Evaluation stays on ``world``.
     worlds: list[str] = field(default_factory=list)
     # batched: every rover as arrays in one process, stepped by compiled calls (kinematic dynamics only);
-    # dummy: one RoverNavEnv after another in one process; subproc: one process per env
+    # dummy: one RoverNavEnv after another in one process; subproc: one process per env; auto: batched with
+    # dynamics=kinematic, dummy otherwise
     vec_env: str = "dummy"
     checkpoint_every: int = 20_000  # env steps between checkpoints; 0: only at the end and on interrupt
     resume: str | None = None  # an MLflow run id, a Hydra run dir or a checkpoint .zip

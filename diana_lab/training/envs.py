@@ -136,7 +136,7 @@ def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: Im
     world ``i % (1 + len(train.worlds))`` of :func:`training_worlds`."""
     groups = env_config(cfg)
     worlds = training_worlds(cfg, train)
-    if train.vec_env == "batched":
+    if resolved_vec_env(train, groups) == "batched":
         from diana_lab.envs.batched import BatchedRoverEnv
 
         make = None
@@ -162,6 +162,26 @@ def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: Im
     venv = vec_cls(factories)
     venv.seed(seed)
     return venv
+
+
+MAX_ENVS_IN_ONE_PROCESS = 16  # RoverNavEnvs that train.vec_env=auto steps one after another before it refuses
+
+
+def resolved_vec_env(train: TrainConfig, groups: dict[str, Any]) -> str:
+    """``train.vec_env`` with ``auto`` decided: ``batched`` for kinematic dynamics, ``dummy`` otherwise (refused,
+    naming the keys, for more envs than one process should step one after another)."""
+    if train.vec_env != "auto":
+        return train.vec_env
+    dynamics = groups["dynamics"].get("name")
+    if dynamics == "kinematic":
+        return "batched"
+    if train.n_envs > MAX_ENVS_IN_ONE_PROCESS:
+        raise C.ConfigError(
+            f"train.vec_env=auto with dynamics={dynamics}: the batched env steps the kinematic model only, so "
+            f"{train.n_envs} envs (train.n_envs) would be stepped one after another in one process; set "
+            "train.n_envs (e.g. 4) and train.vec_env=subproc or dummy"
+        )
+    return "dummy"
 
 
 def _monitored(groups: dict[str, Any], expert: ImitationConfig | None, action_seed: int) -> gym.Env:

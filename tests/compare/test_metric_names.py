@@ -62,7 +62,7 @@ def test_training_and_cli_evaluation_use_the_same_names_and_one_filter_finds_the
         "robot": "jackal",
         "sensor": "depth_camera",
         "algo": "ppo",
-        "action_space": "square",
+        "action_space": "discrete",  # the default's (the tiny runs of tests/training/helpers.py pin the camera)
         "reward": "default",
         "dynamics": "kinematic",
     }
@@ -74,7 +74,8 @@ def test_training_and_cli_evaluation_use_the_same_names_and_one_filter_finds_the
 
     uri = f"sqlite:///{tmp_path}/mlflow.db"
     cfg = compose(
-        ["world=flat", "sensor.width=16", "sensor.height=12", "episode.max_steps=20", "eval.episodes=2",
+        ["world=flat", "sensor=depth_camera", "robot.tilt_guard_deg=null", "sensor.width=16", "sensor.height=12",
+         "episode.max_steps=20", "eval.episodes=2",
          "eval.video=false", "eval.plots=false", f"tracking.uri={uri}", f"policy={rid}"],
         config_name="evaluate",
     )  # fmt: skip

@@ -22,8 +22,10 @@ from diana_lab.config.evaluation import EvalConfig
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.rotations import pitch_matrix
 from diana_lab.sim.world import World
+from tests.presets import CAMERA_SQUARE
 
 SMALL_WORLD = [
+    *CAMERA_SQUARE,
     "world=craters",
     "world.size_x=24",
     "world.size_y=24",

@@ -17,6 +17,7 @@ from diana_lab.deploy.export import MatmulAdaptiveAvgPool2d, export_policy, squa
 from diana_lab.envs.action_spaces import WaypointMapping
 from diana_lab.envs.action_spaces import square_to_disc as square_to_disc_np
 from diana_lab.export import main
+from tests.presets import CAMERA_SQUARE
 
 from .conftest import export_run
 from .helpers import SMALL_WORLD, run_config
@@ -38,7 +39,7 @@ def test_torch_disc_mapping_equals_the_envs():
 
 def test_sidecar_describes_what_the_runtime_needs(depth_run):
     node = json.loads(sidecar_path(depth_run.onnx).read_text())
-    cfg = compose(["world=craters"])
+    cfg = compose([*CAMERA_SQUARE, "world=craters"])
     assert (
         node["sensor"].items()
         >= {
@@ -72,7 +73,7 @@ def test_the_graph_takes_any_batch_and_maps_actions_like_the_env(depth_run):
     assert offset.shape == action.shape == (5, 2) and np.all(np.abs(action) <= 1)
     single = session.run(["offset"], {"goal": goal[2:3], "depth_image": image[2:3]})[0]
     np.testing.assert_allclose(single[0], offset[2], atol=1e-6)
-    mapping = WaypointMapping(to_object("action_space", compose([]).action_space))
+    mapping = WaypointMapping(to_object("action_space", compose(CAMERA_SQUARE).action_space))
     np.testing.assert_allclose(offset, [mapping.offset(a, 0.0) for a in action], atol=1e-5)
 
 
@@ -124,7 +125,7 @@ def test_a_discrete_policys_graph_gathers_the_argmax_candidate(discrete_run):
 
 
 def test_export_refuses_an_action_space_the_policy_was_not_trained_with(depth_run, discrete_run, tmp_path):
-    groups = compose([])
+    groups = compose(CAMERA_SQUARE)
     sensor, episode = to_object("sensor", groups.sensor), to_object("episode", groups.episode)
     square = to_object("action_space", groups.action_space)
     other = to_object("action_space", compose(["action_space=discrete"]).action_space)  # 48 candidates, not 16
@@ -143,8 +144,8 @@ def test_export_refuses_baselines_missing_policies_and_other_sensors(depth_run, 
     with pytest.raises(UserError, match="policy: expected"):
         main.task(compose([f"output={tmp_path / 'p.onnx'}"], config_name="export"))
     model = depth_run.loaded.model
-    sensor = to_object("sensor", compose(["sensor.width=32"]).sensor)
-    groups = compose([])
+    sensor = to_object("sensor", compose([*CAMERA_SQUARE, "sensor.width=32"]).sensor)
+    groups = compose(CAMERA_SQUARE)
     with pytest.raises(ConfigError, match=r"observes 'depth_image' \(1, 48, 64\).*\(1, 48, 32\)"):
         export_policy(
             model,
@@ -162,7 +163,7 @@ def test_a_cost_to_go_policy_exports_its_planner_and_picks_what_torch_picks(smal
     its one-layer head go into the graph, whose choice is the torch policy's on varied maps and goals."""
     overrides = [
         "+experiment=reference_ctg",
-        *SMALL_WORLD,
+        *SMALL_WORLD[len(CAMERA_SQUARE) :],  # the preset's sensor and action space, on the small world
         "algo.extractor.cost_to_go.iterations=12",
         "action_space.headings=8",
     ]

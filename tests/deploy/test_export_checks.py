@@ -85,7 +85,7 @@ def test_the_shipped_policy_exports_behind_its_presets_shield():
         (["robot=husky"], r"robot=husky \(training jackal\)"),  # the shield's size
         # the default value, chosen explicitly: only the command line's overrides tell it from a default
         (["episode.distance_scale=50"], r"episode\.distance_scale=50\.0 \(training 40\.0\)"),
-        (["sensor.width=32"], r"sensor\.width=32 \(training 64\)"),
+        (["sensor=depth_camera", "sensor.width=32"], r"sensor\.width=32 \(training 64\)"),
     ],
 )
 def test_command_line_settings_that_would_change_the_exported_files_are_refused(shielded_run, tmp_path, args, message):

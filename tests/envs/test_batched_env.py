@@ -13,8 +13,9 @@ from diana_lab.config.validation import ConfigError
 from diana_lab.envs import ActionError
 from diana_lab.envs.batched import BatchedRoverEnv
 from diana_lab.training.envs import env_config, shared_world
+from tests.presets import CAMERA_SQUARE
 
-SMALL = ["world=flat", "sensor.width=16", "sensor.height=12"]
+SMALL = [*CAMERA_SQUARE, "world=flat", "sensor.width=16", "sensor.height=12"]
 
 
 def make(overrides: list[str], n: int = 3, worlds: list[dict] | None = None) -> BatchedRoverEnv:

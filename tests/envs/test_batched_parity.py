@@ -21,7 +21,7 @@ N_ROVERS = 4
 OBS_ATOL = 1e-6  # float32 observations: the plane fit's sums may round in another order than numpy's
 REWARD_ATOL = 1e-9
 
-SMALL_CAMERA = ["sensor.width=24", "sensor.height=18"]
+SMALL_CAMERA = ["sensor=depth_camera", "sensor.width=24", "sensor.height=18"]
 LIDAR_MAP = ["sensor=lidar3d", "sensor.horizontal_resolution_deg=8", "sensor.encoding=elevation_map"]
 
 CASES = {

@@ -14,7 +14,14 @@ from diana_lab.envs.rover_nav import RoverNavEnv
 
 
 def make(**kwargs) -> RoverNavEnv:
-    kwargs.setdefault("world", "flat")
+    """A small env on the camera set-up (``tests.presets.CAMERA_SQUARE``), with any group replaced."""
+    for group, option in (
+        ("world", "flat"),
+        ("sensor", "depth_camera"),
+        ("action_space", "square"),
+        ("robot", "jackal"),
+    ):
+        kwargs.setdefault(group, option)
     return RoverNavEnv(**kwargs)
 
 
@@ -257,7 +264,7 @@ def test_tipover_and_timeout_and_stuck_are_reachable():
     x = np.linspace(-20, 20, 161)
     ramp = np.tile(np.clip(x - 2.0, 0, None) * math.tan(math.radians(45)), (161, 1))
     world = World("ramp", Terrain(ramp, 40.0, 40.0))
-    env = RoverNavEnv(world="flat", world_instance=world, episode={"min_distance": 1.0, "max_distance": 3.0})
+    env = make(world_instance=world, episode={"min_distance": 1.0, "max_distance": 3.0})
     # along the 45-degree side slope (climbing only ~19 degrees, rolling ~43): the rover tips over
     env.reset(seed=0, options={"start": (1.5, -5.0), "goal": (1.8, 5.0), "yaw": math.pi / 2})
     terminated, _, info = run_until_done(
@@ -270,7 +277,7 @@ def test_tipover_and_timeout_and_stuck_are_reachable():
     terminated, truncated, info = run_until_done(env, lambda e: np.array([1.0, 0.0], dtype=np.float32))
     assert (terminated, truncated, info["outcome"]) == (False, True, "stuck")
     # a policy that only turns: the step limit ends it as a timeout
-    env = RoverNavEnv(world="flat", episode={"max_steps": 5})
+    env = make(episode={"max_steps": 5})
     env.reset(seed=0)
     terminated, truncated, info = run_until_done(
         env, lambda e: e.mapping.action_for(np.array([0.1, 0.0]), e.pose_estimate.yaw).astype(np.float32) * 0

@@ -97,7 +97,7 @@ def test_a_term_of_ones_own_is_added_from_the_command_line_and_reported_per_step
     from diana_lab.training.envs import env_config
 
     mine = "+reward.terms.mine={fn: tests.envs.test_rewards.double_progress, weight: 0.5, params: {scale: 3.0}}"
-    cfg = compose(["world=flat", "sensor.width=16", "sensor.height=12", mine])
+    cfg = compose(["world=flat", "sensor=depth_camera", "sensor.width=16", "sensor.height=12", mine])
     reward = to_object("reward", cfg.reward)
     assert reward.terms["mine"].fn.endswith("double_progress") and reward.terms["mine"].params == {"scale": 3.0}
     assert RewardManager(reward)(ctx(prev=10.0, dist=8.0))[1]["mine"] == pytest.approx(0.5 * 3.0 * 2.0)

@@ -10,8 +10,9 @@ from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.terrain import Terrain
 from diana_lab.sim.world import World
 from diana_lab.sim.worlds import _rock
+from tests.presets import CAMERA_SQUARE
 
-SMALL_FLAT = ["world=flat", "world.size_x=20", "world.size_y=20"]
+SMALL_FLAT = [*CAMERA_SQUARE, "world=flat", "world.size_x=20", "world.size_y=20"]
 
 
 def small_env(*overrides: str) -> RoverNavEnv:

@@ -16,6 +16,7 @@ from diana_lab.evaluation import (
 )
 from diana_lab.evaluation.policies import SB3Policy
 from tests.evaluation.conftest import SMALL_FLAT, small_env, wall_world
+from tests.presets import CAMERA_SQUARE
 
 WALL_EPISODE = EpisodeSpec(np.array([-4.0, 0.5]), 0.3, np.array([4.0, -0.5]), seed=3)
 
@@ -191,7 +192,7 @@ def test_the_cost_to_go_bound_needs_a_discrete_elevation_map_run():
     from diana_lab.evaluation.loading import load_policy
 
     with pytest.raises(UserError, match=r"action_space=discrete and sensor\.encoding=elevation_map"):
-        load_policy("cost_to_go_bound", compose([]), None)
+        load_policy("cost_to_go_bound", compose(CAMERA_SQUARE), None)
 
 
 @pytest.mark.parametrize("frame", ["rover", "world"])

@@ -9,9 +9,11 @@ from pathlib import Path
 import pytest
 
 from diana_lab.evaluation.metrics import SUMMARY_KEYS
+from tests.presets import CAMERA_SQUARE
 
 ROOT = Path(__file__).resolve().parents[2]
 TINY = [
+    *CAMERA_SQUARE,
     "world=flat",
     "world.size_x=20",
     "world.size_y=20",
@@ -153,8 +155,9 @@ def test_the_pretrained_policy_on_another_action_space_exits_2_naming_the_key(tm
 
 
 def test_evaluating_on_another_robot_than_the_trainings_is_said(tmp_path):
+    flat = TINY[len(CAMERA_SQUARE) :]  # the small world, not the camera set-up: the preset picks the sensor
     proc = evaluate_cli(
-        tmp_path / "run", "policy=pretrained", "+experiment=reference", "robot=husky", *TINY, "eval.episodes=1"
+        tmp_path / "run", "policy=pretrained", "+experiment=reference", "robot=husky", *flat, "eval.episodes=1"
     )
     assert proc.returncode == 0, proc.stderr
     assert "trained on robot=jackal; evaluating it on robot=husky" in proc.stdout
@@ -178,7 +181,7 @@ def test_a_run_evaluated_without_its_trainings_overrides_is_told_which_to_add(tm
     proc = evaluate_cli(tmp_path / "plain", *args)
     assert proc.returncode == 2, proc.stderr
     message = proc.stderr.split("\n(set HYDRA_FULL_ERROR")[0]
-    assert "sensor.width: training 16, here 64" in message and "Traceback" not in message
+    assert "sensor._target_: training 'diana_lab.sensing.camera.DepthCamera'" in message and "Traceback" not in message
     assert message.endswith("Re-run with the training's overrides: +experiment=quick"), message
     proc = evaluate_cli(tmp_path / "with_preset", *args, "+experiment=quick")
     assert proc.returncode == 0, proc.stderr

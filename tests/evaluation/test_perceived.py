@@ -12,6 +12,7 @@ from diana_lab.evaluation.perceived import PerceivedMapOracle, SeenMapOracle, pe
 from diana_lab.height_memory import HeightMemory
 from diana_lab.sim.terrain import Terrain
 from diana_lab.sim.world import World
+from tests.presets import CAMERA_SQUARE
 
 EPISODE = EpisodeSpec(np.array([-4.0, 0.5]), 0.3, np.array([4.0, -0.5]), seed=3)
 
@@ -102,7 +103,7 @@ def test_it_refuses_a_sensor_that_keeps_no_map(spec):
     from diana_lab.evaluation.loading import load_policy
 
     with pytest.raises(UserError, match=rf"policy={spec}.*sensor\.elevation_map\.memory=true"):
-        load_policy(spec, compose([]), None)
+        load_policy(spec, compose(CAMERA_SQUARE), None)
     assert load_policy(spec, compose(["+experiment=reference"]), None).label == spec
 
 

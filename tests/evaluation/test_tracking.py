@@ -7,8 +7,10 @@ from omegaconf import OmegaConf
 
 from diana_lab.config import compose
 from diana_lab.evaluation.tracking import metrics_of
+from tests.presets import CAMERA_SQUARE
 
 TINY = [
+    *CAMERA_SQUARE,
     "world=flat",
     "world.size_x=20",
     "world.size_y=20",

@@ -11,6 +11,7 @@ from diana_lab.envs.action_spaces import WaypointMapping
 from diana_lab.envs.rewards import RewardContext, RewardManager
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.state import WaypointResult
+from tests.presets import CAMERA_SQUARE
 
 finite = st.floats(min_value=-1e12, max_value=1e12, allow_nan=False, allow_infinity=False)
 angles = st.floats(min_value=-4 * math.pi, max_value=4 * math.pi, allow_nan=False)
@@ -88,7 +89,8 @@ def env_for(world: str, encoding: str) -> RoverNavEnv:
     if key not in _ENVS:
         from diana_lab.config import compose
 
-        _ENVS[key] = RoverNavEnv(config=compose([f"world={world}", f"sensor.encoding={encoding}"]))
+        # the camera (its encodings of every kind) and the square action space the hypothesis' actions drive
+        _ENVS[key] = RoverNavEnv(config=compose([*CAMERA_SQUARE, f"world={world}", f"sensor.encoding={encoding}"]))
     return _ENVS[key]
 
 

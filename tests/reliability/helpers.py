@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from tests.presets import CAMERA_SQUARE
+
 # one PPO update of 32 steps in one env, nothing else run or saved on the way: any preset trained for a test
 TINY_BUDGET = [
     "train.n_envs=1",
@@ -25,6 +27,7 @@ QUIET = ["hydra/job_logging=disabled", "hydra/hydra_logging=disabled"]
 # a 20 m flat world, a 16 x 12 camera, 32 PPO steps: a model in a few seconds (its observation space is what
 # the mismatch rows need, not its skill)
 TINY_MODEL = [
+    *CAMERA_SQUARE,
     "world=flat",
     "world.size_x=20",
     "world.size_y=20",

@@ -21,10 +21,18 @@ from diana_lab.envs.action_spaces import ActionError
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.terrain import Terrain
 from diana_lab.sim.world import Obstacle, World
+from tests.presets import CAMERA_SQUARE
 
 DYNAMICS = ["kinematic", "physics"]
 SIZE = 20.0  # a 20 m flat world: bounds +-10 m
-SMALL = ["world=flat", f"world.size_x={SIZE}", f"world.size_y={SIZE}", "sensor.width=16", "sensor.height=12"]
+SMALL = [
+    *CAMERA_SQUARE,
+    "world=flat",
+    f"world.size_x={SIZE}",
+    f"world.size_y={SIZE}",
+    "sensor.width=16",
+    "sensor.height=12",
+]
 
 
 @functools.cache

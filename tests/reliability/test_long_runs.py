@@ -23,10 +23,11 @@ import pytest
 
 from diana_lab.config import compose
 from diana_lab.envs.rover_nav import RoverNavEnv
+from tests.presets import CAMERA_SQUARE
 
 MB = 1024 * 1024
 MAX_GROWTH = 50 * MB
-FLAT_TINY = ["world=flat", "sensor.width=16", "sensor.height=12", "episode.max_steps=10"]
+FLAT_TINY = [*CAMERA_SQUARE, "world=flat", "sensor.width=16", "sensor.height=12", "episode.max_steps=10"]
 
 
 def resources() -> tuple[int, int, int]:
@@ -132,7 +133,7 @@ def test_closing_a_subproc_vec_env_leaves_no_worker_processes() -> None:
     from diana_lab.config.run import TrainConfig
     from diana_lab.training.envs import make_training_env
 
-    cfg = compose(["world=flat", "world.size_x=20", "world.size_y=20", "sensor.width=16", "sensor.height=12"])
+    cfg = compose([*FLAT_TINY, "world.size_x=20", "world.size_y=20"])
     me = psutil.Process()
     before = {p.pid for p in me.children(recursive=True)}
     venv = make_training_env(cfg, TrainConfig(n_envs=2, vec_env="subproc"), seed=0)

@@ -18,9 +18,11 @@ from diana_lab.config import compose
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.sim.physics import PhysicsDynamics
 from diana_lab.training import RunContext, train
+from tests.presets import CAMERA_SQUARE
 from tests.reliability.helpers import TINY_BUDGET
 
 SMALL = [
+    *CAMERA_SQUARE,
     "world=flat",
     "world.size_x=20",
     "world.size_y=20",

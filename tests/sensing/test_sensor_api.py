@@ -66,7 +66,7 @@ def test_bad_sensor_configs_name_the_key(overrides, key):
 
 def test_bad_override_is_caught_when_composing_too():
     with pytest.raises(ConfigError, match=r"sensor\.width: expected a positive integer, got 0"):
-        to_object("sensor", compose(["sensor.width=0"]).sensor)
+        to_object("sensor", compose(["sensor=depth_camera", "sensor.width=0"]).sensor)
 
 
 def test_pickled_sensor_round_trips_and_still_works():

@@ -10,12 +10,14 @@ import yaml
 from mlflow.tracking import MlflowClient
 
 from tests import entrypoints
+from tests.presets import CAMERA_SQUARE
 
 ROOT = Path(__file__).resolve().parents[2]
 
 # a flat world, a 16 x 12 camera, 20-step episodes, a network of a few hundred weights, no files but the model
 TINY_BASE = [
     "world=flat",
+    *CAMERA_SQUARE,
     "sensor.width=16",
     "sensor.height=12",
     "episode.max_steps=20",

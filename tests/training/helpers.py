@@ -11,9 +11,13 @@ from tests import entrypoints
 
 ROOT = Path(__file__).resolve().parents[2]
 
-# a flat world, a 16 x 12 camera, short episodes, 2 evaluation episodes without plots or GIF
+# a flat world, a 16 x 12 camera, short episodes, 2 evaluation episodes without plots or GIF; the envs are the
+# default's (kinematic, so train.vec_env=auto batches them; the discrete action space, which ALGO_TINY swaps for
+# the square where an algorithm needs a Box)
 TINY = [
     "world=flat",
+    "sensor=depth_camera",
+    "robot.tilt_guard_deg=null",
     "sensor.width=16",
     "sensor.height=12",
     "episode.max_steps=20",
@@ -38,7 +42,7 @@ ALGO_TINY = {
     "ppo": ["algo.n_steps=64", "algo.batch_size=64", "algo.n_epochs=1"],
     "a2c": ["algo.n_steps=8"],
     **{
-        a: ["algo.learning_starts=64", "algo.batch_size=16", "algo.buffer_size=1000"]
+        a: ["action_space=square", "algo.learning_starts=64", "algo.batch_size=16", "algo.buffer_size=1000"]
         for a in ("sac", "td3", "ddpg", "tqc")
     },
 }

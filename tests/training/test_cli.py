@@ -99,3 +99,21 @@ def test_an_interrupt_during_imitation_stops_the_run_cleanly(sig, tmp_path):
     assert "Traceback" not in err, err
     _, found = runs(tmp_path)
     assert [r.info.status for r in found] == ["KILLED"], err
+
+
+@pytest.mark.parametrize(("value", "traceback"), [("0", False), ("yes", False), ("1", True)])
+def test_hydra_full_error_is_read_as_hydra_reads_it(value, traceback, tmp_path, monkeypatch, capsys):
+    """Only ``HYDRA_FULL_ERROR=1`` shows the traceback: ``0`` (or any other word) keeps the one-paragraph error."""
+    from diana_lab.cli import full_error
+    from tests import entrypoints
+
+    monkeypatch.setenv("HYDRA_FULL_ERROR", value)
+    assert full_error() is traceback
+    args = ["train.total_timesteps=-5", *store_args(tmp_path)]
+    if traceback:
+        with pytest.raises(Exception, match=r"train\.total_timesteps"):
+            entrypoints.run_in_process("diana_lab.__main__", args)
+    else:
+        assert entrypoints.run_in_process("diana_lab.__main__", args) == 2
+        err = capsys.readouterr().err
+        assert "train.total_timesteps" in err and "Traceback" not in err

@@ -20,10 +20,12 @@ from diana_lab.training.imitation import (
     make_expert,
     soft_targets,
 )
+from tests.presets import CAMERA_SQUARE
 
 from .helpers import ALGO_TINY, TINY, run_in_process, runs, store_args
 
-FLAT = ["world=flat", "sensor.width=16", "sensor.height=12", "episode.max_steps=20"]
+FLAT = [*CAMERA_SQUARE, "world=flat", "sensor.width=16", "sensor.height=12"]
+FLAT += ["episode.max_steps=20"]
 
 
 def _groups(extra: list[str] | None = None) -> dict:

@@ -214,7 +214,8 @@ def test_bad_values_exit_2_without_a_run(override, message, tmp_path, capsys):
 
 
 def test_the_slope_shield_on_continuous_waypoints_exits_2_naming_both_keys(tmp_path, capsys):
-    args = ["algo=ppo", "eval.shield.enabled=true", *TINY, *ALGO_TINY["ppo"], *store_args(tmp_path)]
+    args = ["algo=ppo", "eval.shield.enabled=true", *TINY, *ALGO_TINY["ppo"], "action_space=square"]
+    args += store_args(tmp_path)
     assert run_in_process(args) == 2
     err = capsys.readouterr().err
     assert "eval.shield.enabled with action_space.shape=square" in err and "Traceback" not in err
@@ -222,7 +223,7 @@ def test_the_slope_shield_on_continuous_waypoints_exits_2_naming_both_keys(tmp_p
 
 
 def test_an_algo_that_cannot_drive_discrete_waypoints_exits_2_naming_both_keys(tmp_path, capsys):
-    args = ["algo=sac", "action_space=discrete", *TINY, *ALGO_TINY["sac"], *store_args(tmp_path)]
+    args = ["algo=sac", *TINY, *ALGO_TINY["sac"], "action_space=discrete", *store_args(tmp_path)]
     assert run_in_process(args) == 2
     err = capsys.readouterr().err
     assert "algo=sac with action_space.shape=discrete" in err and "Traceback" not in err

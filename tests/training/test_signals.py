@@ -46,21 +46,26 @@ def test_a_doubly_wrapped_interrupt_is_found_and_other_errors_pass_unchanged():
     assert got.value is error
 
 
-def test_a_sigterm_wrapped_by_native_code_ends_the_run_killed_with_its_checkpoint(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize("vec_env", ["batched", "dummy"])
+def test_a_sigterm_wrapped_by_native_code_ends_the_run_killed_with_its_checkpoint(
+    vec_env, tmp_path, monkeypatch, capsys
+):
     """The interrupt CI once met: SIGTERM landed while numba compiled the ray caster, and the run ended FAILED
-    (exit 1, a traceback) instead of KILLED (exit 143)."""
+    (exit 1, a traceback) instead of KILLED (exit 143). The scalar envs' caster and the batched env's alike."""
+    from diana_lab.envs.batched.sensing import BatchedSensor
     from diana_lab.sensing.sensor import RaySensor
 
-    capture, calls = RaySensor.capture, []
+    owner, name, after = (RaySensor, "capture", 300) if vec_env == "dummy" else (BatchedSensor, "observe", 80)
+    real, calls = getattr(owner, name), []
 
-    def interrupted_capture(self, position, rpy):  # the sensor's numba caster, interrupted after two rollouts
+    def interrupted(self, *args):  # the sensor's numba caster, interrupted after two rollouts
         calls.append(1)
-        if len(calls) > 300:
+        if len(calls) > after:
             raise wrapped(Terminated("received SIGTERM"))
-        return capture(self, position, rpy)
+        return real(self, *args)
 
-    monkeypatch.setattr(RaySensor, "capture", interrupted_capture)
-    code = run_in_process(["algo=ppo", *TINY, *ALGO_TINY["ppo"], *store_args(tmp_path)])
+    monkeypatch.setattr(owner, name, interrupted)
+    code = run_in_process(["algo=ppo", *TINY, *ALGO_TINY["ppo"], f"train.vec_env={vec_env}", *store_args(tmp_path)])
     err = capsys.readouterr().err
     assert code == 143, err
     assert "Traceback" not in err and "interrupted at" in err, err

@@ -10,10 +10,12 @@ from gymnasium import spaces
 
 from diana_lab.config import ConfigError, compose, validate
 from diana_lab.training.envs import make_training_env, training_worlds
+from tests.presets import CAMERA_SQUARE
 
 from .helpers import ALGO_TINY, TINY, run_in_process, runs, store_args
 
-SMALL = ["world=flat", "sensor.width=16", "sensor.height=12", "episode.max_steps=20"]
+SMALL = [*CAMERA_SQUARE, "world=flat", "sensor.width=16", "sensor.height=12"]
+SMALL += ["episode.max_steps=20"]
 
 
 def _train(overrides: list[str]):
@@ -22,7 +24,9 @@ def _train(overrides: list[str]):
 
 
 def test_the_training_envs_cycle_through_the_worlds():
-    cfg, train = _train(["train.worlds=['craters world.seed=7',hills]", "train.n_envs=4"])
+    """One env per world in turn (train.vec_env=dummy; the batched env splits its rovers the same way:
+    tests/envs/test_batched_env.py)."""
+    cfg, train = _train(["train.worlds=['craters world.seed=7',hills]", "train.n_envs=4", "train.vec_env=dummy"])
     venv = make_training_env(cfg, train, seed=3)
     try:
         worlds = [env.unwrapped.world for env in venv.envs]
@@ -38,7 +42,7 @@ def test_the_training_envs_cycle_through_the_worlds():
 
 
 def test_without_worlds_the_envs_are_seeded_as_make_vec_env_seeds_them():
-    cfg, train = _train(["train.n_envs=2"])
+    cfg, train = _train(["train.n_envs=2", "train.vec_env=dummy"])
     venv = make_training_env(cfg, train, seed=11)
     try:
         assert [env.unwrapped.world.name for env in venv.envs] == ["flat", "flat"]
