@@ -15,8 +15,8 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-from mlflow.tracking import MlflowClient  # noqa: E402
+import matplotlib.pyplot as plt
+from mlflow.tracking import MlflowClient
 
 
 def curve(client: MlflowClient, run_id: str, metric: str) -> list[tuple[float, int, float]]:
