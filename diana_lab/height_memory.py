@@ -1,10 +1,8 @@
 """A world-frame 2.5-D height map fused over one episode, read back as rover-centred windows.
 
-Why it exists: a policy that sees only its current frame cannot get out of dead ends. Measured on the Mars
-yard suite (``python -m diana_lab.evaluate world=mars_yard``, 100 episodes): the A* oracle restricted to what
-lies within 8 m of the rover *now* reaches 62 % of the goals, ending mostly stuck; the same oracle keeping a
-map of everything it has seen reaches 94 %, and 99 % (SPL 0.88) when it sees 12 m around. The
-``elevation_map`` encoding with ``memory: true`` gives the policy that map.
+Why it exists: a policy that sees only its current frame cannot get out of dead ends (an A* oracle that knows only
+what lies round the rover now gets stuck where the same oracle with a map of what it has seen does not:
+docs/reference_policy.md). The ``elevation_map`` encoding with ``memory: true`` gives the policy that map.
 
 Numpy only: the training encoder (:mod:`diana_lab.sensing.encoders`) and the onboard runtime
 (:mod:`diana_lab.deploy.encoding`) share this class, so the map a policy was trained on and the map it
@@ -16,9 +14,7 @@ frame: the latest frame wins, so a spurious return (dust) is overwritten when th
 instead of sticking as a maximum would. Points outside the square are dropped; window cells outside it
 are unknown. With ``mean=True`` a second layer, :attr:`HeightMemory.mean_height`, holds each cell's mean of every
 return it has had this episode (the relief check's input, :mod:`diana_lab.shield.relief`): pooled over the frames, not
-the latest frame's, since the mean averages noise out where the highest return is biased up by it (Mars yard
-validation suite with four hazard cameras, pooled against the latest frame's: SPL 0.765 / 0.716, physics 0.81 /
-0.77).
+the latest frame's, since the mean averages noise out where the highest return is biased up by it.
 """
 
 from __future__ import annotations

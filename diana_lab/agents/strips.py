@@ -9,8 +9,8 @@ to ``reach``) is gathered with fixed indices, and one small network scores each 
 to the goal and the goal's distance, into one logit per candidate distance; a circular convolution over the
 headings lets neighbouring headings inform each other (round an obstacle on the left or the right). The
 weights are shared across headings, so the network is equivariant to turning: what it learns of a slope ahead
-holds for a slope behind. One greedy step with a perfect safety check of each candidate succeeds on 97 % of
-Mars-yard episodes: the candidates' safety is what needs learning.
+holds for a slope behind. On the Mars yard a greedy step with a perfect safety check of each candidate reaches
+almost every goal (docs/batched.md): the candidates' safety is what needs learning.
 
 The encoder's output is the candidates' logits (heading-major, the action space's own order) followed by
 pooled features for the value function; :func:`init_logit_head` starts SB3's action head as the identity on the

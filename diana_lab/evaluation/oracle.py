@@ -1,27 +1,19 @@
 """The A* oracle baseline: plans over the whole map and hands its waypoints to the controller one by one.
 
-Why it does not plan on the sampler's cost map as is (measured on the Mars yard, Jackal, kinematic
-dynamics, the default 100-episode suite: 92 % success that way, every failure "stuck"): the cost map judges
-slope by a plane fitted over the footprint's enclosing disc (0.33 m), while the kinematic model stops the
-rover when the plane through the four wheel contacts (0.26 m wheelbase) pitches nose-up beyond
-``robot.max_slope_deg``. On the 0.2 m DEM that plane reads 1 degree steeper on average and 5 degrees or
-more at 5 % of cells (rims and bumps), so paths below 25 degrees of *disc* slope meet 26-28 under the wheels.
-Likewise the planner's obstacle band is exactly the kinematic collision radius, which line-of-sight
-shortcuts, corners cut by stopping short and heading drift graze (5-12 % collisions on ``craters``).
-
-So the oracle, which is meant to know the map and the robot, adds to the sampler's costs a layer measured
-the way the rover measures it -- the steepest chassis pitch over headings of the least-squares plane through
-the wheel contacts (:func:`wheel_pitch_deg`), widened by a drift margin because the controller does not
-follow the line exactly (it drives straight on when within its heading tolerance and stops short by its
-position tolerance) -- and a clearance margin around the obstacle band (:func:`oracle_costmaps`):
+Why it does not plan on the sampler's cost map as is: that map judges slope by a plane over the footprint's
+enclosing disc, while the kinematic model stops the rover when the plane through the four wheel contacts pitches
+past ``robot.max_slope_deg`` (steeper on rims and bumps), and its obstacle band is exactly the collision radius,
+which shortcuts and heading drift graze. So the oracle, meant to know the map and the robot, adds a layer measured
+the way the rover measures it -- the steepest chassis pitch over headings of the plane through the wheel contacts
+(:func:`wheel_pitch_deg`), widened by a drift margin -- and a clearance margin round obstacles
+(:func:`oracle_costmaps`):
 
 * a soft cost growing quadratically near the slope limit and near obstacles (prefer safe ground), and
-* a hard ban above the slope limit and within the clearance margin, with a fall-back to the soft map, then
-  to the sampler's own map, when the ban disconnects start and goal (the sampler only guarantees
-  connectivity on its own map).
+* a hard ban above the slope limit and within the clearance margin, with a fall-back to the soft map, then to the
+  sampler's own map, when the ban disconnects start and goal.
 
-All maps keep the sampler's untraversable cells, so the oracle never leaves the region the episode was
-drawn in. With these the oracle succeeds on 100 % of the Mars yard and ``craters`` suites (kinematic).
+All maps keep the sampler's untraversable cells, so the oracle never leaves the region the episode was drawn in.
+The figures behind these choices: docs/implementation_notes.md.
 """
 
 from __future__ import annotations

@@ -234,16 +234,15 @@ def build_costmap(world: World, robot: RobotConfig, cfg: CostMapConfig | None = 
     """The cost map of ``world`` for ``robot``.
 
     Slope margin: the hazard slope is the tilt of a plane fitted over the whole footprint, while the wheels
-    meet shorter bumps; measured against the kinematic model's plane through the wheel contacts on the Mars
-    yard, planned paths pitched nose-up past ``max_slope_deg`` (by up to ~2 degrees) on 10 % of jackal
-    paths without a margin and on none with the default 3 degrees, at the price of ~2 % of the yard.
+    meet shorter bumps, so planned paths would pitch nose-up past ``max_slope_deg`` without a margin; the default
+    3 degrees keeps them under it at the price of a little of the map.
 
     Obstacle inflation uses ``robot.radius`` (the circle enclosing the footprint), not the half-width: the
     turn-then-drive controller turns in place at every waypoint, sweeping that whole circle, and the planner
     does not know the heading the robot will arrive with. Half a cell is added because smoothed paths run
-    anywhere inside free cells, not only through their centres (without it, 9 % of the jackal's planned
-    paths on the craters world grazed a rock by up to 3 cm in the kinematic model's collision check; with it,
-    none), and ``inflation_margin`` on top for whatever tracking error a controller has.
+    anywhere inside free cells, not only through their centres (without it planned paths grazed rocks in the
+    kinematic model's collision check), and ``inflation_margin`` on top for whatever tracking error a controller
+    has.
     """
     cfg = cfg or CostMapConfig()
     terrain = world.terrain

@@ -4,10 +4,11 @@ Why it exists: the sensor targets (a 64 x 48 depth frame to ``depth_image`` in 0
 one core) cannot be met with open3d's ``RaycastingScene``: ``cast_rays`` takes 0.54-0.69 ms for the 3,072
 rays against the 131k-triangle Mars yard and ~0.15 ms even against a 2-triangle plane (per-call floor). The
 terrain is a regular grid, so a walk through its cells finds the few triangles a ray can hit without any
-acceleration structure: it casts a 64 x 48 frame on the yard in about half open3d's time (numbers, and what
-did not help: :data:`SPEED`). A depth camera's frame goes faster still: the terrain near the sensor, where most
-of its rays end, is rasterised into the image with this walk's own tests (:mod:`diana_lab.sensing.pinhole_raster`,
-the same ranges bit for bit), and only the rays that hit nothing there are walked, from where they leave it.
+acceleration structure: it casts a 64 x 48 frame on the yard in about half open3d's time (the timings, and what
+did not help: docs/implementation_notes.md). A depth camera's frame goes faster still: the terrain near the
+sensor, where most of its rays end, is rasterised into the image with this walk's own tests
+(:mod:`diana_lab.sensing.pinhole_raster`, the same ranges bit for bit), and only the rays that hit nothing there
+are walked, from where they leave it.
 
 Exact: it intersects the very triangles of ``World.scene_mesh`` (the two per cell of :attr:`Terrain.mesh`,
 split from ``(ix + 1, iy)`` to ``(ix, iy + 1)``, at the mesh's float32 vertex coordinates; the obstacles'
@@ -62,7 +63,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "BLOCK_SHIFT",
-    "SPEED",
     "HeightfieldScene",
     "cast_obstacles",
     "cast_terrain",
@@ -70,52 +70,6 @@ __all__ = [
     "pose_rays",
 ]
 
-SPEED = """\
-Measured 2026-11-22, 2 cores (Xeon, load 3.6-4.5 from another job), one thread, mars_yard, the benchmark's rover
-poses (python -m diana_lab.bench 'only=[sensor_ms,elevation_map_ms,sensor_ms_112]' sensor.backend=...), before the
-unsigned indices and the block DDA:
-  64 x 48 (3,072 rays): cast 0.35 ms (open3d 0.65 ms); frame -> depth_image (sensor_ms) 0.354 ms (open3d 0.667)
-  112 x 112 (12,544 rays): cast 1.16 ms (open3d 2.36 ms); frame -> depth_image 1.18 ms (open3d 2.43)
-  elevation_map of a 64 x 48 frame: 0.69 ms (open3d 1.01 ms)
-A 64 x 48 ray cost ~100 ns: ~3 block steps, ~7 cell steps and ~1.4 cell tests (the clipping and first cell ~11 ns).
-Starting every ray 0.3 m before its hit (an oracle) would still take 0.20 ms a frame. Tried, no faster: one level
-or 4 / 16-cell blocks, a branch-free DDA step, float32 maxima, walking column by column, always testing.
-Then (A/B against that kernel in one process, the benchmark's 256 frames interleaved, medians of 40 rounds): unsigned
-indices 0.91x the time, the block DDA and cheaper block entry a further ~0.97x: 0.88x in all (cast ~0.29 ms a frame
-unloaded; sensor_ms ~0.32 ms by estimate). Tried, no faster: skipping the start of each ray that is provably above
-the terrain (per frame, the highest point in square rings of cells and blocks around the sensor, per quadrant):
-30% fewer steps, yet 15-25% slower (the per-ray level test and locating the start cell cost more than the steps);
-the same for upward rays only: no change; fastmath {nsz, contract}: no change.
-Then (whole frame: sensor.observe of the bench's depth_image sensor over its 256 poses, variants interleaved with
-the order rotated, per-round ratio to the previous kernel, medians of 50-60 rounds; load 2-4.6 from another job,
-where two copies of one kernel differ by 0.2-0.3%): the pose form with the sensor's window (RayCaster and
-RaySensor.capture calling cast_pose(..., min_range=...)) 0.973x the frame (~9 us of ~325: the numpy ray transform
-~7 us and the NaN mask ~6 us a frame, less ~3 us of rotating in the kernel); the pose form without the window
-0.99x; the (N, 6) form unchanged (kernel A/B 1.001x). Tried, slower, taken out: a per-frame horizon (the steepest
-slope to the terrain in 64 azimuth sectors, from cells near the sensor and blocks out to max_range, conservative by
-a sector either side; exact): it marks 280-320 of the ~536 rays a frame that hit nothing, but those are the cheap
-ones (upward rays leave the height range at once: ~17 us a frame for all of them), while the costly misses (~215
-near the horizon, ~175 ns each) pass below it; building it takes 6-16 us a frame and testing every ray more, so the
-cast took 1.035-1.06x the time (blocks only / 8 cells near). Clipping rays to the highest block in range instead of
-the map's highest point: 1.01x (no gain).
-Then (session 5, the same A/B method, frames on the bench's poses; a busy machine, two copies of one kernel within
-0.1-0.5%): where a ray's time goes: clipping alone ~12 ns, clipping and the first block and cell ~22 ns, the whole
-frame ~100 ns a ray, yet one ray repeated 3,072 times costs 40-70 ns (hits at 0.4-1.7 m): about a third of a
-frame is the cost of rays that differ (mispredicted branches; shuffling the rays makes the frame 1.30x slower).
-Tried, too little to keep: per-cell plane coefficients precomputed (the test then needs 6 loads and 2 FMAs a plane)
-0.983x; no z division for downward rays 0.996x; t to the next edge accumulated instead of recomputed from the
-vertex coordinates (not exact on a non-uniform grid) 0.984x; rays in column-major order 0.986x; 4 x 4 / 16 x 16
-blocks 1.053x / 1.006x. The frame's point cloud, written by the kernel as it goes (``points``), costs ~1 ns a ray
-(the numpy form, from the ranges afterwards, ~60 us a frame).
-Then (session 13, another machine: AMD EPYC, where the frame above took 0.32 ms cast alone and sensor_ms was
-0.338 ms, open3d's bare cast_rays 0.53 ms against the 0.4 ms the issue quotes): the near field rasterised for
-pinhole cameras (diana_lab.sensing.pinhole_raster): cast 0.315 -> 0.19 ms a frame, sensor_ms 0.338 -> 0.23 ms,
-sensor_ms_112 1.14 -> 0.78 ms; the rays it leaves (about a fifth: hits beyond its box, misses) are walked from
-the box's edge.
-Compile: ~4 s the first time (2.9 s terrain + 1.1 s obstacle kernel), then cached; 0.4 s on first use per process.
-Each form compiles apart, on first use (under load: the (N, 6) form 4.0 s, the pose form 3.7 s, with the window
-2.7 s, pose_rays 1.6 s), then cached.
-"""
 
 BLOCK_SHIFT = 3  # blocks of 8 x 8 cells (1.56 m on the Mars yard)
 

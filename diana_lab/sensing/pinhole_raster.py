@@ -1,8 +1,8 @@
 """The near field of a depth camera's frame, rasterised: terrain cells to the pixels they cover, exactly.
 
-Why it exists: a camera on a rover looks down at the ground just ahead. On the Mars yard (the benchmark's 64 x 48
-frames), 62 % of the rays hit within 1.5 m and 75 % within 3 m, and ray marching them one by one cost about 60 %
-of the frame (each walks from the sensor to its hit, with a hard-to-predict branch at every cell). Turned around,
+Why it exists: a camera on a rover looks down at the ground just ahead: most of its rays hit within a few metres,
+and ray marching them one by one cost most of the frame (each walks from the sensor to its hit, with a
+hard-to-predict branch at every cell). Turned around,
 the same tests cost less: every terrain cell near the sensor is projected into the image once, and only the pixels
 inside its projection test it, with the ray marcher's own arithmetic. The rays that hit nothing there are then
 marched from where they leave that region, as before (:func:`diana_lab.sensing.heightfield_kernels.cast_terrain`).
@@ -24,13 +24,8 @@ maps' edges), because
 
 Which cells: the box around the sector the camera sees (optical axis azimuth plus or minus the widest ray angle)
 out to :data:`REACH_M`, visited in square rings outward from the sensor's cell, so a pixel whose ray already hit
-nearer than a cell's nearest point skips that cell's test. Measured (the cast alone, on the benchmark's 256 poses
-of the Mars yard, AMD EPYC, 2026-11-23): the 64 x 48 frame's cast 0.32 -> 0.19-0.20 ms with a reach of 3-6 m
-(4 m: 0.19 ms; a square box of +-2.7 / 3.9 m around the sensor: 0.21 / 0.20 ms), ~0.1 ms of it the raster;
-``sensor_ms`` in the benchmark 0.338 -> 0.212 ms. The box grows as the square of the reach in cells: on a 20 m patch
-of the yard upsampled to 0.05 m cells (128 poses) the walk alone took 0.52 ms a frame, the raster 0.49 / 0.40 /
-0.46 ms with a reach of 4 / 2 / 1 m, hence the reach's cap of :data:`REACH_CELLS` cells (2 m there; the yard's 4 m
-is 20 cells).
+nearer than a cell's nearest point skips that cell's test. The reach was chosen on timings
+(docs/implementation_notes.md).
 """
 
 from __future__ import annotations
@@ -43,7 +38,7 @@ from diana_lab.sensing.heightfield_kernels import _crossing, _guess, _jit, _pose
 
 __all__ = ["DELTA", "MARGIN", "REACH_CELLS", "REACH_M", "raster_near"]
 
-REACH_M = 4.0  # how far ahead the rasterised box reaches (see the module docstring for the measurement)
+REACH_M = 4.0  # how far ahead the rasterised box reaches (timed: docs/implementation_notes.md)
 REACH_CELLS = 40  # ... and at most this many cells of the narrowest: fine DEMs want a shorter reach
 DELTA = 1e-3  # m: no raster when terrain within one cell of the sensor comes this close to its height
 MARGIN = 0.01  # pixels added around a cell's projected bounding box

@@ -1,53 +1,27 @@
 """The slope shield's detour: a rover that has stopped gaining on its goal drives round what blocks it.
 
-Why it exists: the slowest of the reference policy's successes on the Mars yard, and many of its timeouts, were
-goals behind a wall: a trench or a crater rim between the rover and the goal. The policy keeps choosing drives
-at the wall, the shield vetoes them, the place rule sends the rover to new places beside it, and it wanders
-along the wall for dozens of decisions before it comes round an end (v0.12's slowest: 88 m driven for a goal
-11 m away across a trench whose end lay 7 m to the side). The shield's own map already shows the wall: ground
-its tilt check would not let the rover drive. A least-cost search over that map, rooted at the goal, with
-ground the map has not seen taken as drivable (the free-space assumption of D* Lite-style navigation), tells
-which of the allowed candidates leads round it.
+Why it exists: a goal behind a wall (a trench, a crater rim) keeps the policy choosing drives at the wall, the shield
+vetoing them and the rover wandering along it. The shield's own map already shows the wall; a least-cost search over
+that map, rooted at the goal, with unseen ground taken as drivable (the free-space assumption of D* Lite-style
+navigation), tells which allowed candidate leads round it.
 
-The rule (:class:`Detour`): once ``after`` decisions, each from a place the rover had moved to, have passed
-without the rover coming ``progress`` metres nearer the goal than it has ever been, the shield drives, among
-the candidates it allows, the one with the least drive length plus cost to go from its end (those ending away
-from the places stood on first); when none has a way, the shield chooses as without the rule. Once the rover
-gains again, the policy drives again. Decisions from the place of the last one do not count: a rover that has
-not moved has not tried anything new (and the latency benchmark's replay on one spot does not plan).
+The rule (:class:`Detour`): once ``after`` decisions, each from a new place, have passed without the rover coming
+``progress`` metres nearer the goal than ever, the shield drives the allowed candidate with the least drive length
+plus cost to go from its end (those ending away from places stood on first); once the rover gains again, the policy
+drives again.
 
-The search (:meth:`Detour.costs_to_go`) covers the shield map within ``margin`` of the box spanning the rover and
-the goal. A map cell is untraversable where, for each of the headings 0, 45, 90 and 135 degrees, the pitch along
-it or the roll across it that the map's slope there gives (central differences over the 4 neighbouring cells) is
-over the tilt check's limit: no way of crossing it passes the check. The search's cells are as wide as the
-rover's track (2 x 2 map cells for the Jackal on 0.2 m cells) and drivable only when every map cell in them is,
-so a gap in a wall narrower than the rover is no way through (single map cells: the yard's validation suites
-0.94 / 0.89 / 0.89 against 0.97 / 0.95 / 0.95); those within ``hazard_radius`` of a hazard felt are not drivable
-either. Every other search cell costs its length, seen or not, and those within :data:`GOAL_CLEARANCE` of the
-goal's (per axis) are drivable: the goal is where the rover has to go, even on a steep spot. With the shield's
-relief check on (``relief``), the cells it calls relief hazards are walls too.
-:func:`diana_lab.shield.grid_search.cost_to_go` searches it (numba; onboard too).
+The search (:meth:`Detour.costs_to_go`) covers the map within ``margin`` of the box spanning the rover and the goal.
+A map cell is untraversable where no heading of 0, 45, 90 or 135 degrees crosses it within the tilt check's limit;
+the search's cells are as wide as the rover's track and drivable only when every map cell in them is (a gap
+narrower than the rover is no way through), and not within ``hazard_radius`` of a hazard felt; cells near the goal
+are drivable. With ``relief`` the relief hazards are walls too. :func:`diana_lab.shield.grid_search.cost_to_go`
+searches it (numba; onboard too).
 
-Validation suites (100 episodes each), v0.12 -> ``after`` 4, ``progress`` 0.5 m, ``margin`` 10 m: see
-docs/reference_policy.md, "Detour".
-
-The slope cost (``slope_cost``, :class:`SlopeCost`): a drivable cell whose slope on the map (the gradient from
-its 4 neighbours, on the mean layer when the map keeps one) lies over ``from_deg`` costs its length times
-``1 + weight * e**2``, ``e`` the excess over the span up to ``to_deg`` (at most 1): the A* oracle's cost map
-charges wheel pitch the same way, and its routes keep to gentle ground where the physics rover does not roll.
-
-The route rule (:meth:`Detour.route`; the shield's ``route``): at every decision, the same scores (drive length
-plus cost to go from its end) for the drives the shield allows, and the policy's most probable drive among those
-within ``tolerance`` metres of the least is driven (one ending away from the places stood on first). The
-policy still chooses, but among the ways to the goal its map shows. With the hazard cameras' map and the slope
-cost, the physics validation suites went from 0.87 / 0.89 / 0.80 to 0.96 / 0.93 / 0.90 (docs/reference_policy.md,
-"Route rule").
-
-The site map (:attr:`Detour.site_map`, :class:`~diana_lab.shield.site_map.SiteMap`; the shield's
-``site_map_cell``): where the shield's map gives no slope (a cell or a neighbour unseen), the search takes the
-site map's, for the slope rule and the slope cost alike, instead of taking the ground as flat and drivable.
-Behind ``+experiment=reference_hazcams`` the reported yard suite's slowest success went from 0.058 to 0.11 m/s
-(docs/reference_policy.md, "Site map").
+The slope cost (:class:`SlopeCost`): a drivable cell steeper than ``from_deg`` costs its length times
+``1 + weight * e**2`` (``e`` the excess over the span up to ``to_deg``, at most 1), as the A* oracle charges pitch.
+The route rule (:meth:`Detour.route`): at every decision, only the allowed drives within ``tolerance`` metres of
+the least score are open to the policy. The site map (:attr:`Detour.site_map`): where the shield's map gives no
+slope, the search takes the site map's. What each bought: docs/reference_policy.md.
 """
 
 from __future__ import annotations

@@ -17,8 +17,7 @@ A cell is judged only when its own height and at least ``min_known`` of its foot
 to unseen ground there is no footprint to fit. Unjudged cells are not hazards (as unseen ground passes the tilt
 check); :func:`relief_judgement` also says which cells were judged, for a shield that keeps off unjudged ground
 too. The map should hold each cell's *mean* return (``HeightMemory(mean=True)``): a dense sensor puts many
-returns in a cell, whose highest stands above the ground on any slope and reads as steps and roughness
-(probes of 2026-11-24: with the highest return the Mars yard validation suite fell to 0.82, with the mean 0.95).
+returns in a cell, whose highest stands above the ground on any slope and reads as steps and roughness.
 
 Numpy only, like the shield: the onboard runtime shares it.
 """

@@ -1,86 +1,27 @@
 """A slope shield: the rover's own height map vetoes a candidate waypoint whose straight drive looks too steep.
 
-Why it exists: the reference policy (a CNN choosing one of 96 candidate waypoints from a 0.4 m elevation map)
-picks near-tied candidates, and some of them run into ground it could have seen was too steep. A check of the
-chosen drive on a finer map of the same returns, before it is driven, is what a rover's onboard safety layer
-would do ("shielding" a learnt policy). Measured with the v0.3 weights on 100-episode suites (the numbers in
-docs/reference_policy.md): +11 to +13 points of success on the Mars yard (two suite seeds) and in physics, +2 on unseen
-craters; the gain comes mostly from fewer stuck episodes, since the map rarely shows what the rover tips on.
+Why it exists: a learnt policy choosing among candidate waypoints picks near-tied candidates, some of them into
+ground it could have seen was too steep; checking the chosen drive on a finer map of the same returns before it is
+driven is what a rover's onboard safety layer does ("shielding" a learnt policy). What each rule bought was measured
+on validation suites: docs/reference_policy.md.
 
-The rule (numpy only, so an onboard runtime can share it): along the straight segment from the rover to the
-candidate, every ``spacing`` metres, the map's heights under the front and rear axle centres (pitch over the
-wheelbase) and under the left and right tracks (roll across them); the drive is vetoed when any of those
-tilts exceeds ``limit_deg``. Ground the map has not seen passes (the policy already chose to drive there).
-Among the policy's ``top_k`` candidates, most probable first, the first allowed is driven.
+The rules (numpy only, so the onboard runtime shares them), in the order :meth:`SlopeShield.choose` applies them:
 
-When none is allowed, the tilt check is dropped and the other checks kept: the first candidate not near a hazard
-felt and not obstructed is driven (one that ends away from the places stood on first, as below); only if none
-is left is the policy's own choice. A rover standing on ~30 degree ground (the yard's crater rims) sees every
-drive's first sample over the limit, and giving it the policy's choice repeated the drive that had just halted,
-so it stood there until the episode timed out. Validation suites (100 episodes each), v0.7 -> this rule: the
-yard ``eval.seed=777 / 778 / 779`` 0.85 / 0.82 / 0.85 -> 0.89 / 0.86 / 0.88; with ``sensor.noise=realistic``
-(777) 0.83 -> 0.82, craters ``world.seed=3`` 0.82 unchanged (no decision there found none allowed); with the
-rover's back-off after a guard halt while turning (v0.8, :mod:`diana_lab.sim.kinematic`) 0.91 / 0.88 / 0.91, noise
-0.84. Driving the least steep candidate instead was no better (0.88 on 777).
-
-Hazards felt (``hazard_radius`` > 0): where the wheels met ground they could not drive this episode (the
-rover's tilt guard tripped, or a slope too steep to climb held it; :attr:`WaypointResult.hazard_xy`, reported
-to :meth:`SlopeShield.mark_hazard`), a drive passing within ``hazard_radius`` is vetoed too. The map often
-misses what the rover tips on (features narrower than its cells, ground seen at grazing angles); the wheels
-do not, and a rover that backs off and tries the same ground again gains nothing.
-
-Peaks (``peak_height`` > 0): a drive is also vetoed where a cell of the map within the footprint stands more than
-``peak_height`` above its neighbours (:meth:`HeightMemory.peaks_at`): a rock the obstacle check misses when one of
-its wheel probes, its reference, lies on the rock's smeared cells. Above what: ``peak_rank`` 0 (the default, as
-v0.10 probed it) the median of the 8 neighbours, which a sharp crest also stands over (the Mars yard's rims: the
-yard fell to 0.92 with it); ``peak_rank`` 2 (the preset, v0.11) the second highest, which a crest, with two
-neighbours along it as high as itself, never does, while a rock one or two cells wide still does. On the yard's
-true ground mapped at 0.2 m, 0.19 % of the cells stand more than 0.08 m over their neighbours' median and none
-over their second highest (docs/reference_policy.md, "Peak check").
-
-Smooth ground (``smooth_roughness`` > 0): where the ground the map shows within ``smooth_radius`` of the rover is
-smoother than ``smooth_roughness`` (:meth:`HeightMemory.roughness_near`: the median departure of a block of 2 x 2
-cells from the mean of its 4 neighbouring blocks, 0 on any plane), the obstacle check's limit drops from
-``obstacle_height`` to ``smooth_obstacle_height``; such a veto is put down to ``smooth``. A rise is a rock or the
-ground's own relief, and only the ground round it tells which: one threshold that catches the craters' low rocks
-(0.08 m) vetoed the Mars yard's drivable relief on 28 % of the policy's candidates. The roughness is worked out
-only for a drive whose rise lies between the two limits, once per decision. In the preset (4.5 mm, 0.06 m, 3 m),
-on the validation suites, the craters world's decisions read a median 2.8 mm (3.6 mm with sensor noise), the
-yard's 9.3 mm (5 % under 4.8 mm) (docs/reference_policy.md, "Smooth ground").
-
-Places already stood on (``revisit_radius`` > 0): among the candidates the checks allow, the first whose end
-lies at least ``revisit_radius`` from every place the rover stood at an earlier decision of the episode is
-driven; when none does, the first allowed is, as without the rule. The network does not know where the rover
-has been (its map remembers ground, not poses), and on the Mars yard most failures left were loops: the rover
-backs off a hazard, the policy sends it back to where it came from, and the same ground turns it round again.
-Preferring new places is a tabu list over positions, the oldest cure for a greedy local search that cycles.
-Validation suites (100 episodes each), v0.6 -> 1 m: the yard ``eval.seed=777 / 778 / 779`` 0.75 / 0.75 / 0.84
--> 0.85 / 0.82 / 0.85, with ``sensor.noise=realistic`` (777) 0.75 -> 0.83, craters ``world.seed=3`` unchanged.
-
-The final approach (``approach_radius`` > 0, given the goal): with the goal that near, the shortest candidate
-passing within ``approach_tolerance`` of it is tried before the policy's (:meth:`SlopeShield.approach`), the place
-rule aside. Validation suites, SPL: the yard ``eval.seed=777 / 778 / 779`` 0.800 / 0.738 / 0.792 -> 0.828 / 0.773
-/ 0.821 at 5 m (success 0.91 / 0.88 / 0.91 -> 0.92 / 0.89 / 0.91).
-
-The detour (``detour_after`` > 0, given the goal): once the rover has gone that many decisions without gaining on
-the goal, the allowed candidate with the least length plus cost to go over this map is driven, after the final
-approach and before the policy's own choice (:mod:`diana_lab.shield.detour`, which says why and how).
-
-The route rule (``route``, given the goal): at every decision after those two, only the allowed drives whose
-length plus cost to go over this map lies within ``route_tolerance`` of the least are open to the policy, and its
-most probable of them is driven (:meth:`diana_lab.shield.detour.Detour.route`; ``slope_cost_weight`` makes the search
-charge slopes over ``slope_cost_from_deg``). Such a decision is not counted as a veto: ``routes`` counts those
-that turned from the policy's choice.
-
-Relief (``relief``): a drive is also vetoed where it crosses a cell whose footprint, on the map's mean returns
-(``HeightMemory(mean=True)``), is too steep, stepped or rough (:mod:`diana_lab.shield.relief`, which says why and how);
-the detour's search takes those cells as walls, and the fallback drops the check with the tilt check. With
-``relief_unseen_from`` it also vetoes a drive that, beyond that distance along it, crosses a cell the check cannot
-judge: with dense returns round the rover, that is ground hidden behind a crest or below a drop, where the
-physics rover rolled. It pays off with returns dense round the rover, such as hazard cameras'
-(``eval.shield.cameras``): with them, physics validation suites 0.54 / 0.54 / 0.61 -> 0.87 / 0.89 / 0.80, the
-yard's 0.97 / 0.95 / 0.95 -> 1.00 / 0.98 / 0.97 (``+experiment=reference_hazcams``; docs/reference_policy.md,
-"Hazard cameras").
+* tilt: along the straight drive, every ``spacing`` metres, the map's heights under the axles (pitch) and the tracks
+  (roll); a drive whose tilt passes ``limit_deg`` is vetoed (unseen ground passes). The first allowed of the policy's
+  ``top_k`` most probable candidates is driven;
+* fallback: when none is allowed, the tilt check is dropped and the others kept; only if none is left then is the
+  policy's own choice driven (a rover on a steep rim would otherwise repeat the drive that halted);
+* hazards felt (``hazard_radius``): no drive near where the wheels met ground they could not drive this episode
+  (the tilt guard's trip, a slope that held them): the wheels feel what the map misses;
+* obstacles (``obstacle_height``, lower on smooth ground with ``smooth_roughness``) and peaks (``peak_height``): no
+  drive whose footprint holds something standing over its wheel probes or over its neighbours' cells (a rock);
+* places stood on (``revisit_radius``): among the allowed, the first ending away from every earlier position (a
+  tabu list: the policy does not know where it has been, and loops were the yard's failures);
+* final approach (``approach_radius``), detour (``detour_after``, :mod:`diana_lab.shield.detour`) and route rule
+  (``route``): near the goal, when stalled, and at every decision, drives chosen by a search over this map;
+* relief (``relief``): no drive across cells whose footprint is steep, stepped or rough on the map's mean returns,
+  or (``relief_unseen_from``) across ground it cannot judge (:mod:`diana_lab.shield.relief`).
 """
 
 from __future__ import annotations

@@ -64,7 +64,7 @@ def make_expert(cfg: ImitationConfig) -> Any:
     """The expert named by ``train.imitation.expert`` (a :class:`~diana_lab.evaluation.Policy`)."""
     from diana_lab.evaluation.oracle import AStarOracle
 
-    # spacing 0.8: no tip-overs on the Mars-yard suite (0.95: 1 %)
+    # spacing 0.8 of the action space's reach: the spacing with no tip-overs on the Mars-yard suite
     if cfg.expert == "astar":
         return AStarOracle(receding=True, spacing=0.8)
     if cfg.expert == "astar_memory":
@@ -100,11 +100,9 @@ def expert_cost_label(expert: Any, env: gym.Env, offsets: np.ndarray, shape: tup
     ``(rows, cols)`` float16 in the observation's map frame round the rover's current pose.
 
     Why the least: the expert's map (0.2 m on the Mars yard) is speckled with banned cells it threads between;
-    a coarser planner fed the cells' mean or worst cost gets stuck where the expert drives on (measured with
-    the expert's own costs in the cost_to_go network, 30 Mars-yard episodes: 80 % success with the least,
-    53 % with the mean of logs, 57 % with the median, 37 % with the worst). Beyond the world's edge the map
-    holds no terrain for the sensor to see: there the label is the expert's fill for ground it does not know
-    (the cheapest cost), all a policy could learn.
+    a coarser planner fed the cells' mean or worst cost gets stuck where the expert drives on. Beyond the world's
+    edge the map holds no terrain for the sensor to see: there the label is the expert's fill for ground it does
+    not know (the cheapest cost), all a policy could learn.
     """
     state = env.unwrapped.dynamics.state
     c, s = math.cos(state.rpy[2]), math.sin(state.rpy[2])
@@ -271,7 +269,7 @@ def soft_targets(candidate_costs: np.ndarray, actions: np.ndarray, temperature: 
     nothing on a candidate with no way (``inf``); a row with no finite cost (the expert had no plan and headed
     straight for the goal) is the expert's action ``actions`` alone.
 
-    Why: the expert's one choice among 96 candidates is hard to predict from the map (17 % top-1 agreement in
+    Why: the expert's one choice among 96 candidates is hard to predict from the map (low top-1 agreement in
     the offline probe of docs/reference_policy.md, many of them near-ties: the 1, 2 and 3 m drives along one
     bearing reach the same cost to go), and a hard label teaches every near-tie but one as wrong. Its costs say
     how much worse each candidate is, in the units of the path.

@@ -1,9 +1,8 @@
 """Torch's thread count per phase of training: few while the envs step, every core while the networks learn.
 
-Why: during a rollout the envs (the batched env's compiled kernels, or the subprocesses) and the policy's forward
-passes share the cores, and a second OpenMP thread of torch's only spins against them (a 16 x 12 convolution: 10 ms
-with 2 threads, 0.06 ms with 1, on a 2-core machine); during the gradient updates the envs wait, and the same
-2 cores make the update about 1.8x faster than 1 (PPO on the batched env's 2 x 20 x 20 map, 4 epochs).
+Why: during a rollout the envs (the batched env's compiled kernels, or the subprocesses) and the policy's small
+forward passes share the cores, and a second OpenMP thread of torch's only spins against them; during the gradient
+updates the envs wait, and every core can work on the minibatches (docs/batched.md has the timings).
 """
 
 from __future__ import annotations

@@ -302,3 +302,9 @@ def test_the_hazard_camera_preset_evaluates_it_with_the_relief_check_and_cameras
     # behind the route rule the policy's own choice is turned from on the ways its map shows, not vetoed
     assert runs["reference_hazcams"]["shield_route_rate"] > 0.1
     assert runs["reference_hazcams"]["success_rate"] == 1.0  # the suite's first two goals, reached either way
+
+
+def test_the_shipped_card_is_the_current_policys_only():
+    """The card in the package describes the policy it ships; earlier versions' figures live in docs/."""
+    c = card()
+    assert c["version"] and not [k for k in c if "_v0_" in k]

@@ -1,8 +1,8 @@
 """The env's small geometry for many rovers, compiled, with the scalar env's own rounding.
 
 Why compiled rather than numpy: the scalar env computes distances with Python's ``math.hypot`` (CPython's own
-algorithm, which differs from the C library's ``hypot``, numpy's, in the last bit of about one result in 200)
-and angles with the C library's ``sin``/``cos``/``atan2`` (which numpy's vectorised loops may not call). A
+algorithm, which differs from the C library's ``hypot``, numpy's, in the last bit now and then) and angles with
+the C library's ``sin``/``cos``/``atan2`` (which numpy's vectorised loops may not call). A
 last bit matters where a value meets a threshold: the kinematic model samples a drive every 0.1 m, and a
 discrete action space's waypoints lie exactly 1, 2 or 3 m away, so ``ceil(2.8 / 0.1)`` is decided by it. Here
 :func:`py_hypot` is CPython's algorithm and numba's ``math`` functions are the C library's, so the batched env
