@@ -22,41 +22,11 @@ from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
 from diana_lab.config import CONF_DIR, SCHEMAS, ConfigError, store_schemas, validate
+from diana_lab.errors import UserError, output_file  # noqa: F401  (the entry points' names for them)
+from diana_lab.hydra_run import task_overrides  # noqa: F401
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ConfigError, FileNotFoundError, ValueError)
 EXIT_USER_ERROR = 2
-
-
-class UserError(RuntimeError):
-    """Raised by entry points for user mistakes that are not config values (e.g. an unknown run id)."""
-
-
-def output_file(value: Any, key: str = "output") -> Path:
-    """The path of an output file the user named, with its folder created now: a folder that cannot be made
-    (a read-only place, a file in the way) fails before the work, naming the key, not as an ``OSError``
-    after it."""
-    path = Path(str(value)).expanduser()
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        why = "a file is in the way" if isinstance(exc, FileExistsError | NotADirectoryError) else exc.strerror
-        raise UserError(f"{key}={value}: cannot create the folder '{path.parent}' ({why or exc})") from exc
-    if path.is_dir():
-        raise UserError(f"{key}={value}: '{path}' is a folder; expected a file path")
-    if not os.access(path.parent, os.W_OK):
-        raise UserError(f"{key}={value}: the folder '{path.parent}' is not writable")
-    return path
-
-
-def task_overrides() -> list[str]:
-    """The command line's overrides of the running Hydra app (``hydra.overrides.task``), as typed.
-
-    Read unresolved: Hydra keeps them in a ListConfig, and iterating that resolves an override holding an
-    interpolation (``'reward.terms.pitch.params.deadband_deg=${...roll.params.deadband_deg}'``, as a sweep's
-    reproduce line carries) against the list, where a relative key is not found."""
-    from hydra.core.hydra_config import HydraConfig
-
-    return [str(o) for o in OmegaConf.to_container(HydraConfig.get().overrides.task, resolve=False)]
 
 
 def full_error() -> bool:

@@ -1,8 +1,8 @@
 """One SB3 features extractor for every observation the env can produce, dispatching on the dict keys.
 
 ``goal`` goes through an MLP; the sensor key through the encoder made for it: a CNN for ``depth_image``, a CNN
-(or an MLP, or the value-iteration planning network of :mod:`diana_lab.agents.planner`, which also reads the
-goal) for ``elevation_map``, a masked PointNet for ``points``. The features are concatenated and fed to
+(or an MLP, or the candidate-strips network of :mod:`diana_lab.agents.strips`, which also reads the goal) for
+``elevation_map``, a masked PointNet for ``points``. The features are concatenated and fed to
 the policy/value heads (``algo.net_arch``). Because it reads the keys of the observation space, one
 ``policy_kwargs`` works for every sensor: swapping ``sensor=`` never needs a policy change.
 """
@@ -17,36 +17,13 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-from diana_lab.agents.cost_to_go import CostToGoNet
 from diana_lab.agents.encoders import ImageCNN, PointNet, mlp
-from diana_lab.agents.planner import ValueIterationNet
 from diana_lab.agents.strips import CandidateStrips
 from diana_lab.config.validation import ConfigError
 
 __all__ = ["SENSOR_KEYS", "RoverExtractor"]
 
 SENSOR_KEYS = ("depth_image", "elevation_map", "points")
-
-
-def _planning_encoder(
-    name: str, shape: tuple, planner: dict | None, cost_to_go: dict | None, out_dim: int
-) -> nn.Module:
-    """The ``vin`` or ``cost_to_go`` encoder of a ``(C, H, W)`` map, its bad settings as :class:`ConfigError`."""
-    if name == "vin":
-        cls, key, given, extra = ValueIterationNet, "planner", planner, {"out_dim": out_dim}
-        needs = "the planner's geometry"
-    else:
-        cls, key, given, extra = CostToGoNet, "cost_to_go", cost_to_go, {}
-        needs = "the map's geometry and the action candidates"
-    if len(shape) != 3 or not given:
-        raise ConfigError(
-            f"algo.extractor: the {name} encoder needs a (C, H, W) map and {needs}, "
-            f"got shape {shape} and {key}={given!r}"
-        )
-    try:
-        return cls(shape[0], shape[1], shape[2], **given, **extra)
-    except ValueError as exc:
-        raise ConfigError(f"algo.extractor.{key}: {exc}") from exc
 
 
 class RoverExtractor(BaseFeaturesExtractor):
@@ -57,11 +34,8 @@ class RoverExtractor(BaseFeaturesExtractor):
         goal_hidden: widths of the goal MLP.
         cnn_channels, cnn_pool: the image CNN's convolution widths and pooled grid (rows, cols).
         sensor_features: output width of every sensor encoder.
-        elevation_encoder: ``"cnn"``, ``"mlp"`` (flattened grid), ``"strips"``, ``"vin"`` or ``"cost_to_go"``
-            for ``elevation_map``.
+        elevation_encoder: ``"cnn"``, ``"mlp"`` (flattened grid) or ``"strips"`` for ``elevation_map``.
         point_hidden: widths of PointNet's shared per-point MLP.
-        planner: :class:`ValueIterationNet` arguments besides the map's shape (``elevation_encoder="vin"``).
-        cost_to_go: :class:`CostToGoNet` arguments besides the map's shape (``elevation_encoder="cost_to_go"``).
         strips: :class:`CandidateStrips` arguments besides the map's shape (``elevation_encoder="strips"``).
     """
 
@@ -74,8 +48,6 @@ class RoverExtractor(BaseFeaturesExtractor):
         sensor_features: int = 128,
         elevation_encoder: str = "cnn",
         point_hidden: Sequence[int] = (64, 128),
-        planner: dict | None = None,
-        cost_to_go: dict | None = None,
         strips: dict | None = None,
     ) -> None:
         if not isinstance(observation_space, gym.spaces.Dict):
@@ -95,9 +67,6 @@ class RoverExtractor(BaseFeaturesExtractor):
                     )
                 encoders[key] = CandidateStrips(shape[1], shape[2], **strips)
                 dims[key] = encoders[key].out_dim
-            elif key == "elevation_map" and elevation_encoder in ("vin", "cost_to_go"):
-                encoders[key] = _planning_encoder(elevation_encoder, shape, planner, cost_to_go, sensor_features)
-                dims[key] = encoders[key].out_dim
             elif key == "depth_image" or (key == "elevation_map" and elevation_encoder == "cnn"):
                 if len(shape) != 3:
                     raise ConfigError(f"algo.extractor: '{key}' must be (C, H, W), got shape {shape}")
@@ -105,13 +74,12 @@ class RoverExtractor(BaseFeaturesExtractor):
                 dims[key] = sensor_features
             elif key == "elevation_map" and elevation_encoder == "mlp":
                 encoders[key] = nn.Sequential(nn.Flatten(), mlp(int(np.prod(shape)), [256, sensor_features]))
+                dims[key] = sensor_features
             elif key == "elevation_map":
                 raise ConfigError(
                     f"algo.extractor.elevation_encoder: {elevation_encoder!r} is not an encoder of the map here "
-                    "(auto is decided by diana_lab.agents.factory.build_model); expected cnn, mlp, strips, vin or "
-                    "cost_to_go"
+                    "(auto is decided by diana_lab.agents.factory.build_model); expected cnn, mlp or strips"
                 )
-                dims[key] = sensor_features
             elif key == "points":
                 if len(shape) != 2:
                     raise ConfigError(f"algo.extractor: 'points' must be (N, F), got shape {shape}")
@@ -135,7 +103,7 @@ class RoverExtractor(BaseFeaturesExtractor):
         parts = []
         for key, encoder in self.encoders.items():
             x = observations[key]
-            if isinstance(encoder, (ValueIterationNet, CostToGoNet, CandidateStrips)):
+            if isinstance(encoder, CandidateStrips):
                 parts.append(encoder(x, observations["goal"].flatten(1)))
             else:
                 parts.append(encoder(x.flatten(1) if key == "goal" else x))

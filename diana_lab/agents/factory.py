@@ -19,7 +19,6 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
-from diana_lab.agents.cost_to_go import init_policy_head
 from diana_lab.agents.extractors import RoverExtractor
 from diana_lab.agents.strips import init_logit_head
 from diana_lab.config.algo import NON_SB3_KEYS, AlgoConfig, check_action_space
@@ -28,16 +27,10 @@ from diana_lab.config.validation import ConfigError
 __all__ = ["algo_class", "build_model", "load_model", "policy_kwargs"]
 
 
-def policy_kwargs(
-    cfg: AlgoConfig,
-    n_actions: int | None = None,
-    candidates: np.ndarray | None = None,
-    env_cfg: dict[str, Any] | None = None,
-) -> dict[str, Any]:
+def policy_kwargs(cfg: AlgoConfig, env_cfg: dict[str, Any] | None = None) -> dict[str, Any]:
     """``MultiInputPolicy`` kwargs: our extractor, the head sizes and any extra ``algo.policy_kwargs``.
 
-    ``n_actions``, ``candidates``: a discrete action space's size and ``(n, 2)`` waypoint offsets, which the
-    ``cost_to_go`` encoder scores."""
+    ``env_cfg``: the env's typed groups, whose map and candidates the ``strips`` encoder reads."""
     ext = cfg.extractor
     kwargs: dict[str, Any] = {
         "features_extractor_class": RoverExtractor,
@@ -52,34 +45,6 @@ def policy_kwargs(
         "net_arch": list(cfg.net_arch),
         "normalize_images": False,  # depth images are already in [0, 1] (float32, not uint8)
     }
-    if ext.elevation_encoder == "vin":
-        p = ext.planner
-        kwargs["features_extractor_kwargs"]["planner"] = {
-            "pool": p.pool,
-            "hidden": p.hidden,
-            "actions": p.actions,
-            "iterations": p.iterations,
-            "patch": p.patch,
-            **p.geometry(),
-        }
-    if ext.elevation_encoder == "cost_to_go":
-        c = ext.cost_to_go
-        if n_actions is None or candidates is None:
-            raise ConfigError(
-                "algo.extractor.elevation_encoder=cost_to_go needs action_space=discrete (its candidates)"
-            )
-        kwargs["features_extractor_kwargs"]["cost_to_go"] = {
-            "pool": c.pool,
-            "hidden": c.hidden,
-            "iterations": c.iterations,
-            "grad_iterations": c.grad_iterations,
-            "max_cost": c.max_cost,
-            "candidates": np.asarray(candidates, dtype=float).tolist(),
-            **c.geometry(),
-        }
-        # the logits read the candidates' features through one linear layer (init_policy_head); the value
-        # head keeps algo.net_arch
-        kwargs["net_arch"] = {"pi": [], "vf": list(cfg.net_arch)}
     if ext.elevation_encoder == "strips":
         kwargs["features_extractor_kwargs"]["strips"] = strips_kwargs(cfg, env_cfg)
         # the logits are the encoder's (init_logit_head); the value head keeps algo.net_arch
@@ -105,6 +70,12 @@ def resolve_encoder(cfg: AlgoConfig, env_cfg: dict[str, Any] | None) -> AlgoConf
     if env_cfg is not None:
         actions, sensor = env_cfg["action_space"], env_cfg["sensor"]
         strips = actions.shape == "discrete" and actions.frame == "rover" and sensor.encoding == "elevation_map"
+    if strips and cfg.normalize and "goal" in cfg.norm_obs_keys:
+        raise ConfigError(
+            "algo.normalize: algo.extractor.elevation_encoder=auto picks the strips encoder here, which turns the raw "
+            "goal vector's bearing onto every heading; set algo.normalize=false, drop 'goal' from "
+            "algo.norm_obs_keys, or choose algo.extractor.elevation_encoder=cnn"
+        )
     extractor = dataclasses.replace(cfg.extractor, elevation_encoder="strips" if strips else "cnn")
     return dataclasses.replace(cfg, extractor=extractor)
 
@@ -164,18 +135,11 @@ def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", ve
     noise = _action_noise(cfg, int(np.prod(env.action_space.shape)))
     if noise is not None:
         extra["action_noise"] = noise
-    candidates, n = None, None
-    if cfg.extractor.elevation_encoder == "cost_to_go" and isinstance(env.action_space, spaces.Discrete):
-        candidates, n = env.get_attr("mapping", [0])[0].candidates, int(env.action_space.n)
-    kwargs = policy_kwargs(cfg, n, candidates, env_cfg)
+    kwargs = policy_kwargs(cfg, env_cfg)
     model = make(env=env, policy_kwargs=kwargs, seed=seed, device=device, verbose=verbose, **extra)
     if cfg.extractor.elevation_encoder == "strips":
         extractor = model.policy.features_extractor
         init_logit_head(model.policy.action_net, extractor.offset("elevation_map"), int(env.action_space.n))
-    if cfg.extractor.elevation_encoder == "cost_to_go":
-        extractor = model.policy.features_extractor
-        c = cfg.extractor.cost_to_go
-        init_policy_head(model.policy.action_net, extractor.offset("elevation_map"), n, c.beta, c.progress)
     return model
 
 

@@ -20,7 +20,7 @@ from diana_lab.benchmarks import batched, deploy, dynamics, envs, sensing, train
 from diana_lab.benchmarks.core import MEASUREMENTS, BenchContext, Figure, flag, select
 from diana_lab.benchmarks.machine import library_versions, load_average, machine_info, pin_threads
 from diana_lab.benchmarks.report import SCHEMA_VERSION, figures_table, write_json
-from diana_lab.cli import output_file
+from diana_lab.errors import output_file
 
 __all__ = ["ORDER", "PROFILE", "run"]
 

@@ -98,7 +98,7 @@ def _check_group_by(df: pd.DataFrame, group_by: Sequence[str]) -> None:
     unknown = [g for g in group_by if g not in tags]
     if not unknown:
         return
-    from diana_lab.training.context import TAG_GROUPS  # only here: it imports the training stack
+    from diana_lab.tracking.names import TAG_GROUPS
 
     unknown = [g for g in unknown if g not in TAG_GROUPS]
     if unknown:

@@ -25,7 +25,7 @@ from diana_lab.config.algo import check_action_space
 from diana_lab.config.store import SCHEMAS, register, store_schemas
 from diana_lab.config.validation import ConfigError
 
-CONF_DIR = Path(__file__).resolve().parents[2] / "conf"
+CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # inside the package: it travels with a wheel
 GROUPS = ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode")
 
 __all__ = [

@@ -24,8 +24,7 @@ from diana_lab.config.validation import (
     positive_int,
 )
 
-ELEVATION_ENCODERS = ("auto", "cnn", "mlp", "strips", "vin", "cost_to_go")
-GEOMETRY_KEYS = ("cell_size", "extent_forward", "extent_side", "distance_scale")
+ELEVATION_ENCODERS = ("auto", "cnn", "mlp", "strips")
 
 # algo keys that configure the runner / policy rather than being constructor arguments of the SB3 class
 NON_SB3_KEYS = frozenset(
@@ -53,85 +52,6 @@ def _layers(key: str, value: list[int]) -> None:
 
 
 # ----------------------------------------------------------------------------------------------- algo
-
-
-@dataclass
-class _MapGeometry:
-    """The map's geometry and the goal scaling, for encoders that place the goal on the map. Set them by
-    interpolation from ``sensor.elevation_map`` and ``episode`` (see ``conf/experiment/reference.yaml``) so the
-    two cannot drift apart: ``cell_size: ${sensor.elevation_map.cell_size}``, ...,
-    ``distance_scale: ${episode.distance_scale}``."""
-
-    cell_size: float | None = None
-    extent_forward: float | None = None
-    extent_side: float | None = None
-    distance_scale: float | None = None
-
-    def _check_geometry(self, key: str) -> None:
-        for name in GEOMETRY_KEYS:
-            value = getattr(self, name)
-            if value is not None and not value > 0:
-                raise ConfigError(f"{key}.{name}: expected a positive number, got {value!r}")
-
-    def _geometry(self, key: str, encoder: str) -> dict[str, float]:
-        missing = [k for k in GEOMETRY_KEYS if getattr(self, k) is None]
-        if missing:
-            raise ConfigError(
-                f"{key}: elevation_encoder={encoder} needs {', '.join(missing)} (the map's geometry), "
-                f"e.g. {key}.cell_size='${{sensor.elevation_map.cell_size}}'"
-            )
-        return {k: float(getattr(self, k)) for k in GEOMETRY_KEYS}
-
-
-@dataclass
-class PlannerConfig(_MapGeometry):
-    """The value-iteration network of :mod:`diana_lab.agents.planner` (``elevation_encoder: vin``)."""
-
-    pool: int = 3  # map cells per planning cell (per side)
-    hidden: int = 8  # hazard feature channels
-    actions: int = 8  # Q channels per value-iteration backup
-    iterations: int = 20  # backups: the plan's reach in planning cells
-    patch: int = 2  # half-width (planning cells) of the block of values round the rover the heads read
-
-    def __post_init__(self) -> None:
-        for key in ("pool", "hidden", "actions", "iterations", "patch"):
-            positive_int(f"algo.extractor.planner.{key}", getattr(self, key))
-        self._check_geometry("algo.extractor.planner")
-
-    def geometry(self) -> dict[str, float]:
-        """The geometry keys, all set (else :class:`ConfigError` naming the missing ones)."""
-        return self._geometry("algo.extractor.planner", "vin")
-
-
-@dataclass
-class CostToGoConfig(_MapGeometry):
-    """The learnt cost map and shortest-path backup of :mod:`diana_lab.agents.cost_to_go`
-    (``elevation_encoder: cost_to_go``; a categorical policy over ``action_space=discrete``'s candidates)."""
-
-    pool: int = 2  # map cells per planning cell (per side)
-    hidden: int = 16  # channels of the cost CNN's first layers (its last two have twice as many)
-    iterations: int = 40  # Bellman-Ford rounds: the reach of a path, in planning cells
-    grad_iterations: int = 6  # the last rounds that pass gradients to the costs
-    max_cost: float = 100.0  # the cost of a cell deemed impassable
-    beta: float = 5.0  # the policy head starts at logits -beta * (cost-to-go + segment cost) (per metre) ...
-    progress: float = 0.5  # ... + progress * (the candidate's progress towards the goal, m)
-
-    def __post_init__(self) -> None:
-        key = "algo.extractor.cost_to_go"
-        for name in ("pool", "hidden", "iterations"):
-            positive_int(f"{key}.{name}", getattr(self, name))
-        if not isinstance(self.grad_iterations, int) or not 0 <= self.grad_iterations <= self.iterations:
-            raise ConfigError(
-                f"{key}.grad_iterations: expected an integer in [0, iterations={self.iterations}], "
-                f"got {self.grad_iterations!r}"
-            )
-        if not self.max_cost > 1.0:
-            raise ConfigError(f"{key}.max_cost: expected a number > 1, got {self.max_cost!r}")
-        non_negative(f"{key}.beta", self.beta)
-        self._check_geometry(key)
-
-    def geometry(self) -> dict[str, float]:
-        return self._geometry("algo.extractor.cost_to_go", "cost_to_go")
 
 
 @dataclass
@@ -170,14 +90,10 @@ class ExtractorConfig:
     cnn_pool: list[int] = field(default_factory=lambda: [3, 4])  # adaptive pooling grid (rows, cols) after it
     sensor_features: int = 128
     # auto (strips where the action space is discrete in the rover's frame, else cnn) | cnn | mlp | strips (one
-    # network scoring every candidate heading's strip of the map, see ``strips``) | vin (a value-iteration
-    # planning network, see ``planner``) | cost_to_go (a learnt cost map and a shortest-path backup scoring the
-    # discrete action space's candidates, see ``cost_to_go``)
+    # network scoring every candidate heading's strip of the map, see ``strips``)
     elevation_encoder: str = "auto"
     point_hidden: list[int] = field(default_factory=lambda: [64, 128])  # PointNet shared per-point MLP
     strips: StripsConfig = field(default_factory=StripsConfig)
-    planner: PlannerConfig = field(default_factory=PlannerConfig)
-    cost_to_go: CostToGoConfig = field(default_factory=CostToGoConfig)
 
     def __post_init__(self) -> None:
         _layers("algo.extractor.goal_hidden", self.goal_hidden)
@@ -214,9 +130,9 @@ class AlgoConfig:
         in_range("algo.gamma", self.gamma, 0.0, 1.0)
         _layers("algo.net_arch", self.net_arch)
         encoder = self.extractor.elevation_encoder
-        if encoder in ("vin", "cost_to_go", "strips") and self.normalize and "goal" in self.norm_obs_keys:
+        if encoder == "strips" and self.normalize and "goal" in self.norm_obs_keys:
             raise ConfigError(
-                f"algo.normalize: the {encoder} encoder places the goal on its map from the raw goal vector, so 'goal' "
+                "algo.normalize: the strips encoder turns the raw goal vector's bearing onto every heading, so 'goal' "
                 "cannot be normalised; set algo.normalize=false or drop 'goal' from algo.norm_obs_keys"
             )
 

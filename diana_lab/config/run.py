@@ -10,7 +10,6 @@ from diana_lab.config.store import register
 from diana_lab.config.validation import (
     ConfigError,
     in_range,
-    non_negative,
     non_negative_int,
     one_of,
     positive,
@@ -53,25 +52,14 @@ class ImitationConfig:
     batch_size: int = 256
     learning_rate: float = 1.0e-3
     # torch threads while fitting (0: every core this process may use): the training envs wait meanwhile, so
-    # the cores train.torch_threads leaves to them are free (2 threads: 1.3-1.6x faster on the reference CNN here)
+    # the cores train.torch_threads leaves to them are free
     fit_threads: int = 0
     # Gaussian policies only (PPO/A2C): the log std set after imitation, so RL starts near the imitated policy
     # (a categorical policy, action_space=discrete, has none: its exploration is the fitted probabilities)
     log_std: float | None = -1.5
-    # > 0: also teach a cost_to_go encoder's cost CNN the expert's own cost map (the log cost per planning cell
-    # of what the expert knows, MSE), this much against the action loss; needs algo.extractor.elevation_encoder
-    # =cost_to_go. Dense labels: 900 per state instead of one action.
-    cost_weight: float = 0.0
-    # > 0 (action_space=discrete only): soft labels. Instead of the expert's one choice, the policy is fitted to
-    # softmax(-(c - min c) / label_temperature) over every candidate's cost c to the goal as the expert reckons it
-    # (segment + cost to go, in weighted metres; candidates with no way get nothing), so near-tied candidates
-    # share the label instead of one of them being right and its neighbour wrong. 0: the expert's choice alone
-    label_temperature: float = 0.0
 
     def __post_init__(self) -> None:
         key = "train.imitation"
-        non_negative(f"{key}.cost_weight", self.cost_weight)
-        non_negative(f"{key}.label_temperature", self.label_temperature)
         one_of(f"{key}.expert", self.expert, EXPERTS)
         positive(f"{key}.knowledge_radius", self.knowledge_radius)
         positive_int(f"{key}.iterations", self.iterations)

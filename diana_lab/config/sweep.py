@@ -26,7 +26,7 @@ def _positive_int_or_none(key: str, value: int | None) -> None:
 class SweepConfig:
     """How to run a study; ``None`` means "as the sweep file says"."""
 
-    name: str = "reward_shaping"  # sweeps/<name>.yaml, or a path to a sweep file
+    name: str = "reward_shaping"  # diana_lab/sweeps/specs/<name>.yaml, or a path to a sweep file
     n_trials: int | None = None  # the study's total (finished trials count, so a rerun tops it up)
     sampler: str = "tpe"  # tpe | random | cmaes
     sampler_seed: int | None = None  # for a reproducible single worker; None: each worker draws its own
@@ -48,7 +48,9 @@ class SweepConfig:
 
     def __post_init__(self) -> None:
         if not str(self.name).strip():
-            raise ConfigError("sweep.name: expected the name of a file in sweeps/ (e.g. reward_shaping)")
+            raise ConfigError(
+                "sweep.name: expected the name of a file in diana_lab/sweeps/specs/ (e.g. reward_shaping)"
+            )
         one_of("sweep.sampler", self.sampler, SAMPLERS)
         one_of("sweep.pruner", self.pruner, PRUNERS)
         if self.direction is not None:

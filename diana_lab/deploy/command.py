@@ -109,8 +109,8 @@ def check_overrides(cfg: DictConfig, train_cfg: DictConfig, chosen: set[str], sh
     those groups from the training config, since the files must describe what the policy was trained with,
     and a replaced setting must not pass unseen. Settings that do not reach the files (the simulator's, a robot
     without a shield to size) are named in one line."""
-    from diana_lab.cli import UserError
     from diana_lab.config import to_object
+    from diana_lab.errors import UserError
     from diana_lab.shield import ShieldSettings
 
     def exported(group: str, node: Any) -> Any:
@@ -154,9 +154,9 @@ def check_overrides(cfg: DictConfig, train_cfg: DictConfig, chosen: set[str], sh
 def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
     """``python -m diana_lab.export``: load ``cfg.policy`` with the evaluation's loader, export it. ``overrides``:
     the command line's (Hydra's ``overrides.task``), which tell a setting chosen there from a default."""
-    from diana_lab.cli import UserError, output_file
     from diana_lab.config import to_object
     from diana_lab.config.evaluation import ShieldConfig
+    from diana_lab.errors import UserError, output_file
     from diana_lab.evaluation.loading import load_policy
 
     if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:

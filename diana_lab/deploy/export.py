@@ -296,7 +296,7 @@ def opset_range() -> tuple[int, int]:
 
 def check_opset(opset: int) -> None:
     """Refuse an opset outside :func:`opset_range` before anything is exported (naming ``opset``)."""
-    from diana_lab.cli import UserError
+    from diana_lab.errors import UserError
 
     low, high = opset_range()
     if not low <= opset <= high:
@@ -310,7 +310,7 @@ def check_opset(opset: int) -> None:
 def check_output(output: Path) -> None:
     """Refuse an ``output`` whose sidecar (the same name with ``.json``) would be the graph's own file: the
     sidecar, written last, would replace the graph."""
-    from diana_lab.cli import UserError
+    from diana_lab.errors import UserError
 
     if output.suffix.lower() == ".json":
         raise UserError(
@@ -381,7 +381,7 @@ def export_policy(
         output.unlink(missing_ok=True)  # never leave a graph behind that failed its check or cannot run
         if opset == DEFAULT_OPSET:  # the tested opset: a bug, whose traceback is wanted
             raise
-        from diana_lab.cli import UserError
+        from diana_lab.errors import UserError
 
         why = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
         raise UserError(

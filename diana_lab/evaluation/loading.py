@@ -2,19 +2,14 @@
 
 Accepted values:
 
-* ``straight`` / ``astar`` / ``astar_receding`` / ``astar_local`` / ``astar_cone`` (``_memory``) / ``astar_memory``
-  (12 m, the imitation expert of the reference policy's v0.1) -- the classical
-  baselines (:mod:`diana_lab.evaluation.oracle`);
-* ``astar_perceived`` -- ``astar_memory``'s planner on the cost maps of what the rover's own sensor mapped
-  (:mod:`diana_lab.evaluation.perceived`; needs ``sensor.elevation_map.memory``, e.g. ``+experiment=reference``);
-* ``astar_seen`` -- ``astar_memory`` on the true cost maps, knowing only the cells that sensor map has hit (same
-  module and needs; the reference policy's imitation expert);
+* ``straight`` / ``astar`` (the whole map) / ``astar_memory`` (what lay within 12 m of the rover so far: a DAgger
+  expert) -- the classical baselines (:mod:`diana_lab.evaluation.oracle`);
+* ``astar_seen`` -- ``astar_memory`` on the true cost maps, knowing only the cells the rover's own sensor map has hit
+  (:mod:`diana_lab.evaluation.perceived`; needs ``sensor.elevation_map.memory``; the reference policy's DAgger
+  expert);
 * ``bearing`` -- the candidates of ``action_space=discrete`` ranked by the goal's bearing alone
   (:class:`~diana_lab.evaluation.policies.GoalBearing`): with ``eval.shield.enabled`` it drives behind the slope
   shield in the network's place, the non-learnt baseline of what the network adds there;
-* ``cost_to_go_bound`` -- the ``cost_to_go`` network's planner fed the ``astar_memory`` expert's cost map,
-  the bound of that architecture (:mod:`diana_lab.evaluation.cost_to_go_bound`; needs the run's
-  ``+experiment=reference_ctg`` settings);
 * a path to a Stable-Baselines3 ``.zip`` (or a folder holding ``model.zip``); a ``vecnormalize.pkl`` beside
   it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
 * an MLflow run id (32 hex digits) of a training run, whose artefacts ``model/model.zip``,
@@ -41,8 +36,8 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from diana_lab.cli import UserError
 from diana_lab.config import ConfigError
+from diana_lab.errors import UserError
 from diana_lab.evaluation.compatibility import recorded_overrides
 from diana_lab.evaluation.oracle import AStarOracle
 from diana_lab.evaluation.policies import GoalBearing, Policy, SB3Policy, ShieldedPolicy, StraightLine
@@ -162,7 +157,7 @@ def _vecnormalize_file(model_zip: Path, train_cfg: DictConfig | None) -> Path | 
     (``rl_model_vecnormalize_<n>_steps.pkl``: the run's final ``vecnormalize.pkl`` would normalise its
     observations with other statistics), else ``vecnormalize.pkl`` beside it. A run that normalised
     (``algo.normalize``) without them is refused: the raw observations would run without a word."""
-    from diana_lab.training.checkpoints import MODEL_RE, Checkpoint
+    from diana_lab.tracking.checkpoint_files import MODEL_RE, Checkpoint
 
     checkpoint = MODEL_RE.match(model_zip.name)
     expected = (
@@ -239,22 +234,15 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
 
 
-# the classical baselines by name (knowledge 8 m: the elevation map's reach; 100 deg: the depth camera's cone)
+# the classical baselines by name
 BASELINES: dict[str, Callable[[], Policy]] = {
     "straight": StraightLine,
     "astar": AStarOracle,
-    "astar_receding": lambda: AStarOracle(receding=True, spacing=0.8),
-    "astar_local": lambda: AStarOracle(spacing=0.8, knowledge_radius=8.0),
-    "astar_cone": lambda: AStarOracle(spacing=0.8, knowledge_radius=8.0, knowledge_fov_deg=100.0),
-    "astar_local_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=8.0, knowledge_memory=True),
-    "astar_cone_memory": lambda: AStarOracle(
-        spacing=0.8, knowledge_radius=8.0, knowledge_fov_deg=100.0, knowledge_memory=True
-    ),
-    # the imitation expert of the reference policy's v0.1 (train.imitation.expert=astar_memory, knowledge_radius 12 m)
+    # the DAgger expert train.imitation.expert=astar_memory (knowledge_radius 12 m)
     "astar_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=12.0, knowledge_memory=True),
 }
 # every policy ``policy=`` accepts by name besides ``pretrained`` (the baselines, and those that read the config)
-POLICY_NAMES = (*BASELINES, "astar_perceived", "astar_seen", "bearing", "cost_to_go_bound")
+POLICY_NAMES = (*BASELINES, "astar_seen", "bearing")
 
 
 def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
@@ -289,21 +277,14 @@ def _load(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
                 "action_space=discrete (or a preset with it, e.g. +experiment=reference)"
             )
         return LoadedPolicy(GoalBearing(), spec)
-    if spec == "cost_to_go_bound":  # reads the run's network settings, unlike the other baselines
-        from diana_lab.evaluation.cost_to_go_bound import CostToGoBound
-
-        try:
-            return LoadedPolicy(CostToGoBound.from_config(cfg), spec)
-        except ConfigError as exc:
-            raise UserError(str(exc)) from exc
-    if spec in ("astar_perceived", "astar_seen"):  # read the env's own sensor map: refuse a config that keeps none
-        from diana_lab.evaluation.perceived import PerceivedMapOracle, SeenMapOracle, check_perceivable
+    if spec == "astar_seen":  # reads the env's own sensor map: refuse a config that keeps none
+        from diana_lab.evaluation.perceived import SeenMapOracle, check_perceivable
 
         try:
             check_perceivable(cfg, f"policy={spec}")
         except ConfigError as exc:
             raise UserError(str(exc)) from exc
-        return LoadedPolicy(PerceivedMapOracle() if spec == "astar_perceived" else SeenMapOracle(), spec)
+        return LoadedPolicy(SeenMapOracle(), spec)
     if spec == "pretrained":
         model_zip = PRETRAINED_DIR / "model.zip"
         if not model_zip.is_file():

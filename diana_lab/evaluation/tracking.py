@@ -93,7 +93,7 @@ def log_evaluation(
 
 def _group_tags(client: Any, params: dict[str, Any], parent_run_id: str | None) -> dict[str, str]:
     """The evaluation run's tags: its kind, the env options it ran on, the parent's ``algo`` and ``seed``."""
-    from diana_lab.training.context import TAG_GROUPS
+    from diana_lab.tracking.names import TAG_GROUPS
 
     tags = {"diana_lab.kind": "evaluation"}
     if parent_run_id is not None:

@@ -229,8 +229,7 @@ def choose_waypoint(
     the goal costs no more, which is then followed. Given ``candidates`` (world points, ``(n, 2)``: a
     discrete action space's waypoints), the best of exactly those is returned (``reach`` unused), so an
     expert labels with an action the learner can take, not the nearest one to a waypoint it cannot; the
-    choice then carries every candidate's cost too (what a soft imitation label is made of,
-    ``train.imitation.label_temperature``). When the straight line to the goal wins, the candidate chosen along
+    choice then carries every candidate's cost too. When the straight line to the goal wins, the candidate chosen along
     it may cost a little more on the grid than the least (the grid's cost to go overestimates off-axis ways), so
     its cost is lowered to the least: the expert's choice is always among the cheapest.
 

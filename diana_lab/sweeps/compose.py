@@ -14,7 +14,7 @@ from omegaconf import DictConfig, OmegaConf, open_dict
 
 from diana_lab.config import CONF_DIR, ConfigError, store_schemas
 from diana_lab.config import override_keys as _override_keys
-from diana_lab.training.context import TAG_GROUPS
+from diana_lab.tracking.names import TAG_GROUPS
 
 __all__ = ["compose_run", "override_keys"]
 

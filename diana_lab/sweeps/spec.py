@@ -28,7 +28,7 @@ from diana_lab.sweeps.space import Param, SpaceError, parse_entry
 
 __all__ = ["BUDGET_KEYS", "METRICS", "SWEEPS_DIR", "SweepSpec", "available", "find_sweep", "load_spec"]
 
-SWEEPS_DIR = Path(__file__).resolve().parents[2] / "sweeps"
+SWEEPS_DIR = Path(__file__).resolve().parent / "specs"  # the shipped search spaces, inside the package
 METRICS = tuple(k for k in SUMMARY_KEYS if k != "episodes")  # what an objective can be
 SECTIONS = {
     "description": None,

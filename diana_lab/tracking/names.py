@@ -19,9 +19,22 @@ from typing import Any
 
 from diana_lab.tracking.params import numeric_metrics
 
-__all__ = ["EVAL_PREFIX", "eval_metric", "eval_metrics"]
+__all__ = ["EVAL_PREFIX", "TAG_GROUPS", "eval_metric", "eval_metrics"]
 
 EVAL_PREFIX = "eval_"
+
+# the config groups whose chosen option becomes an MLflow tag (filterable in the UI: tags.world = "mars_yard")
+TAG_GROUPS = (
+    "world",
+    "robot",
+    "dynamics",
+    "sensor",
+    "action_space",
+    "reward",
+    "episode",
+    "algo",
+    "experiment",
+)
 
 
 def eval_metric(key: str) -> str:

@@ -16,21 +16,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from diana_lab.tracking.names import TAG_GROUPS  # the groups tagged on a run (defined with the metric names)
+
 __all__ = ["TAG_GROUPS", "EvalHook", "RunContext", "StopRun"]
-
-# the config groups whose chosen option becomes an MLflow tag (filterable in the UI: tags.world = "mars_yard")
-TAG_GROUPS = (
-    "world",
-    "robot",
-    "dynamics",
-    "sensor",
-    "action_space",
-    "reward",
-    "episode",
-    "algo",
-    "experiment",
-)
-
 
 EvalHook = Callable[[int, dict[str, Any]], None]  # (timesteps, evaluation summary)
 
@@ -58,7 +46,7 @@ class RunContext:
         from hydra.core.hydra_config import HydraConfig
         from hydra.types import RunMode
 
-        from diana_lab.cli import task_overrides
+        from diana_lab.hydra_run import task_overrides
 
         hc = HydraConfig.get()
         choices = {g: str(v) for g, v in hc.runtime.choices.items() if g in TAG_GROUPS and v is not None}

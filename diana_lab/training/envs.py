@@ -99,17 +99,9 @@ def make_env(groups: dict[str, Any], render_mode: str | None = None, expert: Imi
     env = RoverNavEnv(config=groups, world_instance=shared_world(groups["world"]), render_mode=render_mode)
     if expert is None:
         return env
-    from diana_lab.training.imitation import ExpertLabels, cost_label_offsets, make_expert
+    from diana_lab.training.imitation import ExpertLabels, make_expert
 
-    offsets = None
-    if expert.cost_weight > 0:
-        if groups["sensor"].get("encoding") != "elevation_map":
-            raise C.ConfigError(
-                "train.imitation.cost_weight: cost labels need sensor.encoding=elevation_map, got "
-                f"{groups['sensor'].get('encoding')!r}"
-            )
-        offsets = cost_label_offsets(groups["sensor"]["elevation_map"])
-    return ExpertLabels(env, make_expert(expert), offsets, candidate_costs=expert.label_temperature > 0)
+    return ExpertLabels(env, make_expert(expert))
 
 
 def check_env(groups: dict[str, Any], seed: int) -> tuple[gym.Space, gym.Space]:
@@ -143,11 +135,6 @@ def make_training_env(cfg: DictConfig, train: TrainConfig, seed: int, expert: Im
         if expert is not None:
             from diana_lab.training.imitation import make_expert
 
-            if expert.cost_weight > 0 or expert.label_temperature > 0:
-                raise C.ConfigError(
-                    "train.imitation.cost_weight / label_temperature with train.vec_env=batched: the batched env "
-                    "labels the expert's action only; set them to 0 or use train.vec_env=dummy or subproc"
-                )
             make = functools.partial(make_expert, expert)
         venv = BatchedRoverEnv(groups, train.n_envs, worlds, [shared_world(w) for w in worlds], expert=make)
         venv.seed(seed)

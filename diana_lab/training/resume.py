@@ -27,7 +27,7 @@ from typing import Any
 import gymnasium as gym
 from omegaconf import DictConfig, OmegaConf
 
-from diana_lab.cli import UserError
+from diana_lab.errors import UserError
 from diana_lab.training.checkpoints import MODEL_RE, Checkpoint, latest_checkpoint
 
 __all__ = [

@@ -32,11 +32,11 @@ from stable_baselines3.common.vec_env import VecEnv, VecNormalize
 
 from diana_lab import config as C
 from diana_lab.agents.factory import build_model, load_model
-from diana_lab.cli import UserError
 from diana_lab.config.algo import AlgoConfig
 from diana_lab.config.evaluation import EvalConfig
 from diana_lab.config.run import TrackingConfig, TrainConfig
 from diana_lab.config.validation import check_seed
+from diana_lab.errors import UserError
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.git import git_commit, git_dirty
@@ -380,12 +380,6 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
             "train.final_eval=false turns off; drop one of them"
         )
     imitation = train_cfg.imitation
-    if imitation.enabled and imitation.label_temperature > 0 and typed["action_space"].shape != "discrete":
-        raise C.ConfigError(
-            f"train.imitation.label_temperature={imitation.label_temperature}: soft labels spread over a discrete "
-            f"action space's candidates, but action_space.shape={typed['action_space'].shape}; set "
-            "action_space=discrete or train.imitation.label_temperature=0"
-        )
     if imitation.enabled and imitation.expert == "astar_seen":  # the expert reads the policy's own sensor map
         from diana_lab.evaluation.perceived import check_perceivable
 

@@ -20,7 +20,7 @@ from diana_lab.export import main
 from tests.presets import CAMERA_SQUARE
 
 from .conftest import export_run
-from .helpers import SMALL_WORLD, run_config
+from .helpers import run_config
 
 
 @pytest.mark.parametrize(("in_hw", "out_hw"), [((14, 14), (3, 4)), ((6, 8), (3, 4)), ((5, 7), (5, 2))])
@@ -156,32 +156,6 @@ def test_export_refuses_baselines_missing_policies_and_other_sensors(depth_run, 
             tmp_path / "p.onnx",
         )
     assert not (tmp_path / "p.onnx").exists()
-
-
-def test_a_cost_to_go_policy_exports_its_planner_and_picks_what_torch_picks(small_world, tmp_path):
-    """The learnt-cost-map policy (``elevation_encoder=cost_to_go``): the Bellman backups, bilinear reads and
-    its one-layer head go into the graph, whose choice is the torch policy's on varied maps and goals."""
-    overrides = [
-        "+experiment=reference_ctg",
-        *SMALL_WORLD[len(CAMERA_SQUARE) :],  # the preset's sensor and action space, on the small world
-        "algo.extractor.cost_to_go.iterations=12",
-        "action_space.headings=8",
-    ]
-    run = export_run(tmp_path, compose(overrides), small_world, normalize=False)
-    try:
-        session = ort.InferenceSession(str(run.onnx), providers=["CPUExecutionProvider"])
-        rng = np.random.default_rng(1)
-        goal = np.zeros((24, 7), np.float32)
-        bearing = rng.uniform(-np.pi, np.pi, 24)
-        goal[:, 0], goal[:, 1], goal[:, 2], goal[:, 6] = rng.uniform(0.02, 0.6, 24), np.sin(bearing), np.cos(bearing), 1
-        emap = ((rng.uniform(0, 1, (24, 2, 60, 60)) > 0.5) * rng.uniform(0.4, 0.6, (24, 1, 1, 1))).astype(np.float32)
-        action = session.run(["action"], {"goal": goal, "elevation_map": emap})[0]
-        assert len(set(action.tolist())) > 3  # the goal's bearing moves the choice
-        for i in range(len(goal)):
-            want = run.loaded.policy.act({"goal": goal[i], "elevation_map": emap[i]}, run.env)
-            assert int(want) == action[i]
-    finally:
-        run.env.close()
 
 
 def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_valid_settings(discrete_run, depth_run):

@@ -91,19 +91,13 @@ CASES = {
         "sensor.elevation_map.memory=true",
         "sensor.elevation_map.memory_radius=20",
     ],
-    # the same map read by the value-iteration planning network (the reference recipe's): the goal enters the map
-    "lidar_elevation_memory_vin": [
-        "sensor=lidar3d",
-        "sensor.encoding=elevation_map",
-        "sensor.elevation_map.memory=true",
+    # the main command's: the lidar map with memory read by the strips network over discrete candidates (the
+    # graph's gathers along every heading and its argmax)
+    "lidar_map_strips": [
+        "sensor=lidar_map",
         "sensor.elevation_map.memory_radius=20",
-        "algo.extractor.elevation_encoder=vin",
-        "algo.extractor.planner.pool=2",
-        "algo.extractor.planner.iterations=4",
-        "algo.extractor.planner.cell_size=${sensor.elevation_map.cell_size}",
-        "algo.extractor.planner.extent_forward=${sensor.elevation_map.extent_forward}",
-        "algo.extractor.planner.extent_side=${sensor.elevation_map.extent_side}",
-        "algo.extractor.planner.distance_scale=${episode.distance_scale}",
+        "action_space=discrete",
+        "algo.extractor.elevation_encoder=strips",
     ],
     # depth camera + points (voxel then stride subsample, order-dependent), TD3, world-frame squares
     "camera_points_td3_world": [

@@ -16,7 +16,6 @@ from diana_lab.evaluation import (
 )
 from diana_lab.evaluation.policies import SB3Policy
 from tests.evaluation.conftest import SMALL_FLAT, small_env, wall_world
-from tests.presets import CAMERA_SQUARE
 
 WALL_EPISODE = EpisodeSpec(np.array([-4.0, 0.5]), 0.3, np.array([4.0, -0.5]), seed=3)
 
@@ -169,30 +168,6 @@ def test_receding_oracle_chooses_among_the_discrete_candidates_themselves():
                 break
     finally:
         wall.close()
-
-
-def test_the_cost_to_go_bound_plans_round_the_wall_on_the_experts_costs():
-    """``policy=cost_to_go_bound``: the cost_to_go network's fixed planner on the expert's cost map drives
-    round the wall that the straight line hits, choosing among the discrete candidates."""
-    from diana_lab.evaluation.loading import load_policy
-
-    cfg = compose(["+experiment=reference_ctg", "episode.max_steps=60"])
-    env = RoverNavEnv(config=cfg, world_instance=wall_world())
-    try:
-        loaded = load_policy("cost_to_go_bound", cfg, None)
-        df, traces = run_episodes(loaded.policy, env, [WALL_EPISODE])
-        assert df.loc[0, "outcome"] == "success", df.iloc[0].to_dict()
-        assert abs(traces[0].xy[:, 1]).max() > 5.0  # round an end of the 10 m wall
-    finally:
-        env.close()
-
-
-def test_the_cost_to_go_bound_needs_a_discrete_elevation_map_run():
-    from diana_lab.cli import UserError
-    from diana_lab.evaluation.loading import load_policy
-
-    with pytest.raises(UserError, match=r"action_space=discrete and sensor\.encoding=elevation_map"):
-        load_policy("cost_to_go_bound", compose(CAMERA_SQUARE), None)
 
 
 @pytest.mark.parametrize("frame", ["rover", "world"])

@@ -185,13 +185,6 @@ ROWS = [
         ("episode.min_distance", "larger world"),
         slow=True,
     ),
-    Bad(
-        "soft-labels-on-a-continuous-action-space",
-        TRAIN,
-        ("train.imitation.enabled=true", "train.imitation.label_temperature=0.25", "action_space=square"),
-        ("train.imitation.label_temperature", "action_space.shape=square", "discrete"),
-        slow=True,
-    ),
     Bad("resume-unknown-run-id", TRAIN, (f"train.resume={RUN_ID}",), ("train.resume", RUN_ID), slow=True),
     Bad(
         "resume-from-random-bytes",

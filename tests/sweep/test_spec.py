@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def test_reward_shaping_searches_every_default_term_and_the_deadband():
     spec = load_spec("reward_shaping")
-    terms = yaml.safe_load((ROOT / "conf/reward/default.yaml").read_text())["terms"]
+    terms = yaml.safe_load((ROOT / "diana_lab/conf/reward/default.yaml").read_text())["terms"]
     keys = {p.key for p in spec.params}
     assert {f"reward.terms.{t}.weight" for t in terms} <= keys
     assert "reward.terms.roll.params.deadband_deg" in keys

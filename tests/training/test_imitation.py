@@ -13,12 +13,10 @@ from diana_lab.config.run import ImitationConfig
 from diana_lab.tracking import Tracker
 from diana_lab.training.envs import env_config, make_env
 from diana_lab.training.imitation import (
-    CANDIDATES_KEY,
     LABEL_KEY,
     ExpertLabels,
     imitate,
     make_expert,
-    soft_targets,
 )
 from tests.presets import CAMERA_SQUARE
 
@@ -134,66 +132,6 @@ def test_behaviour_cloning_of_discrete_labels_fits_a_categorical_policy():
     venv.close()
 
 
-def test_soft_targets_share_the_label_among_near_ties_by_their_cost():
-    inf = np.inf
-    costs = np.array([[10.0, 10.0, 10.5, inf, 12.0], [inf, inf, inf, inf, inf], [3.0, 2.0, 1.0, 0.0, inf]])
-    actions = np.array([0, 2, 3])
-    p = soft_targets(costs, actions, temperature=0.5)
-    assert p.shape == costs.shape and p.dtype == np.float32
-    np.testing.assert_allclose(p.sum(axis=1), 1.0, rtol=1e-6)
-    assert p[0, 0] == pytest.approx(p[0, 1]) and p[0, 0] / p[0, 2] == pytest.approx(np.e, rel=1e-5)
-    assert p[0, 3] == 0.0 and p[2, 4] == 0.0  # no way, no share
-    np.testing.assert_array_equal(p[1], [0, 0, 1, 0, 0])  # no plan: the expert's action alone
-    assert list(np.argsort(-p[2]))[:4] == [3, 2, 1, 0]
-    sharp = soft_targets(costs, actions, temperature=0.05)
-    assert sharp[0, 2] < p[0, 2] and sharp[0, :2].sum() > 0.99  # colder: nearer the expert's one choice
-
-
-def test_candidate_costs_travel_with_each_label_and_the_label_costs_the_least():
-    cfg = ImitationConfig(enabled=True, label_temperature=0.25)
-    env = make_env(_groups(["action_space=discrete"]), expert=cfg)
-    assert env.candidate_costs
-    _, info = env.reset(seed=3)
-    for _ in range(5):
-        costs, label = info[CANDIDATES_KEY], int(info[LABEL_KEY])
-        assert costs.shape == (env.action_space.n,) and costs.dtype == np.float32
-        assert np.isfinite(costs).sum() > env.action_space.n // 2  # open flat ground: most candidates have a way
-        assert costs[label] == np.min(costs)
-        _, _, terminated, truncated, info = env.step(label)
-        if terminated or truncated:
-            break
-    env.close()
-    with pytest.raises(ValueError, match=r"train\.imitation\.label_temperature"):
-        make_env(_groups(), expert=cfg)  # a continuous action space has no candidates to share a label
-
-
-def test_dagger_with_soft_labels_fits_the_experts_cost_ranking():
-    """The fitted policy's probabilities follow the expert's candidate costs on states it was not trained on:
-    its most probable candidate is far cheaper than chance, and the cross-entropy falls towards the labels'
-    own entropy."""
-    discrete = ["action_space=discrete"]
-    model, venv, cfg, result = _imitate(
-        seed=0, steps=256, epochs=20, extra=discrete, iterations=2, beta_decay=1.0, label_temperature=0.25
-    )
-    losses = [row["loss"] for row in result.history]
-    assert losses[-1] < losses[0] < np.log(48)
-    env = make_env(_groups(discrete), expert=cfg)
-    obs, info = env.reset(seed=123)
-    regret, chance = [], []
-    for _ in range(60):
-        costs = info[CANDIDATES_KEY].astype(np.float64)
-        finite = np.isfinite(costs)
-        pred, _ = model.predict(venv.normalize_obs({k: v[None] for k, v in obs.items()}), deterministic=True)
-        regret.append(costs[int(pred[0])] - costs[finite].min() if finite[int(pred[0])] else 10.0)
-        chance.append(np.mean(costs[finite] - costs[finite].min()))
-        obs, _, terminated, truncated, info = env.step(int(info[LABEL_KEY]))
-        if terminated or truncated:
-            obs, info = env.reset()
-    assert np.mean(regret) < 0.25 * np.mean(chance)
-    env.close()
-    venv.close()
-
-
 def test_imitated_policy_drives_to_the_goal_on_flat_ground():
     from diana_lab.evaluation import SB3Policy, make_suite, run_suite, summarize
 
@@ -218,7 +156,7 @@ def test_runner_logs_the_imitation_stage(tmp_path, capsys):
     ]
     assert run_in_process(args) == 0
     err = capsys.readouterr().err
-    assert "imitation 2/2: beta" in err and "cost loss" not in err  # printed only with the cost loss on (was nan)
+    assert "imitation 2/2: beta" in err
     client, (run,) = runs(tmp_path)
     assert run.info.status == "FINISHED" and run.data.tags["imitation_steps"] == "128"
     loss = client.get_metric_history(run.info.run_id, "imitation/loss")
@@ -235,94 +173,11 @@ def test_runner_logs_the_imitation_stage(tmp_path, capsys):
         ("train.imitation.expert=human", "train.imitation.expert"),
         ("train.imitation.knowledge_radius=0", "train.imitation.knowledge_radius"),
         ("train.imitation.fit_threads=-1", "train.imitation.fit_threads"),
-        ("train.imitation.label_temperature=-0.1", "train.imitation.label_temperature"),
     ],
 )
 def test_bad_imitation_config_names_the_key(override, key):
     with pytest.raises(ConfigError, match=key.replace(".", r"\.")):
         validate(compose([override]), ["train"])
-
-
-CTG = ["+experiment=reference_ctg", "algo.extractor.cost_to_go.iterations=20", "episode.max_steps=30"]
-
-
-def test_cost_labels_are_the_experts_map_in_the_observations_frame():
-    """``info["expert_cost"]``: per map cell, the least log cost over its quarter points of the map the expert
-    planned on, laid out like the elevation map (row 0 ahead, column 0 left), and the expert's fill (the
-    cheapest cost) beyond what it knows and beyond the world's edge."""
-    import math
-
-    env = make_env(env_config(compose(CTG)), expert=ImitationConfig(enabled=True, expert="astar_memory", cost_weight=1))
-    try:
-        obs, info = env.reset(seed=5, options={"yaw": 0.7})
-        label = info["expert_cost"].astype(np.float64)
-        assert label.shape == obs["elevation_map"].shape[1:] and info["expert_cost"].dtype == np.float16
-        state = env.unwrapped.dynamics.state
-        known = env.expert.known
-        yaw = state.rpy[2]
-        ahead, left = np.array([math.cos(yaw), math.sin(yaw)]), np.array([-math.sin(yaw), math.cos(yaw)])
-        cheapest = np.log(known.cost[np.isfinite(known.cost)].min())
-        inside = 0
-        for row in range(0, 60, 7):
-            for col in range(0, 60, 5):
-                x, y = 12.0 - (row + 0.5) * 0.4, 12.0 - (col + 0.5) * 0.4
-                pts = [state.position[:2] + (x + a) * ahead + (y + b) * left for a in (-0.1, 0.1) for b in (-0.1, 0.1)]
-                px, py = np.array(pts).T
-                on_map = known.inside(*known.world_to_cell(px, py))
-                expected = np.where(on_map, np.log(np.clip(known.cost_at(px, py), 1, 1e4)), cheapest).min()
-                assert label[row, col] == pytest.approx(expected, abs=3e-3), (row, col)
-                inside += on_map.all()
-        assert 20 <= inside < 108  # the rover starts near enough the edge that both kinds are checked
-        assert label[0, 0] == pytest.approx(cheapest, abs=2e-3)  # 16.7 m away: beyond the 12 m it knows
-        assert label.max() > 2 * label[29, 29]  # and the Mars yard is not all cheap ground
-    finally:
-        env.close()
-
-
-def _expert_states(groups: dict, expert: ImitationConfig, seed: int, n: int) -> tuple[torch.Tensor, np.ndarray]:
-    """``n`` elevation maps the expert drove through, and its cost labels for them."""
-    env = make_env(groups, expert=expert)
-    obs, info = env.reset(seed=seed)
-    maps, labels = [], []
-    for _ in range(n):
-        maps.append(obs["elevation_map"])
-        labels.append(info["expert_cost"])
-        obs, _, terminated, truncated, info = env.step(info["expert_action"])
-        if terminated or truncated:
-            obs, info = env.reset()
-    env.close()
-    return torch.as_tensor(np.stack(maps)), np.stack(labels).astype(np.float32)
-
-
-def test_the_cost_map_labels_teach_the_cost_to_go_network():
-    """After DAgger with ``cost_weight``, the cost CNN is closer to the expert's log costs on states of
-    other episodes than it started."""
-    from diana_lab.training.imitation import _cost_loss
-
-    groups = env_config(compose(CTG))
-    expert = ImitationConfig(enabled=True, expert="astar_memory", cost_weight=10.0)
-    venv = DummyVecEnv([lambda: make_env(groups, expert=expert) for _ in range(2)])
-    venv.seed(0)
-    model = build_model(validate(compose(CTG), ["algo"])["algo"], venv, seed=0)
-    net = model.policy.features_extractor.encoders["elevation_map"]
-    maps, labels = _expert_states(groups, expert, seed=99, n=48)
-    with torch.no_grad():
-        before = float(_cost_loss(net, maps, labels))
-    cfg = ImitationConfig(
-        enabled=True,
-        expert="astar_memory",
-        cost_weight=10.0,
-        steps_per_iteration=128,
-        epochs=24,
-        iterations=1,
-        batch_size=32,
-    )
-    result = imitate(model, venv, cfg, seed=0, tracker=Tracker())
-    venv.close()
-    with torch.no_grad():
-        after = float(_cost_loss(net, maps, labels))
-    assert np.isfinite(result.history[0]["cost_loss"])
-    assert after < 0.8 * before, (before, after)
 
 
 def test_the_astar_seen_expert_needs_the_policys_map_before_any_run_starts(tmp_path):
@@ -331,16 +186,6 @@ def test_the_astar_seen_expert_needs_the_policys_map_before_any_run_starts(tmp_p
     assert runs(tmp_path)[1] == []  # refused before an MLflow run was opened
     labels = ImitationConfig(enabled=True, expert="astar_seen")
     assert make_expert(labels).name == "astar_seen"
-
-
-def test_cost_labels_need_the_cost_to_go_encoder():
-    groups = env_config(compose(["+experiment=reference", "episode.max_steps=30"]))
-    venv = DummyVecEnv([lambda: make_env(groups, expert=ImitationConfig(enabled=True, cost_weight=1.0))])
-    model = build_model(validate(compose(["+experiment=reference"]), ["algo"])["algo"], venv, seed=0)
-    cfg = ImitationConfig(enabled=True, cost_weight=1.0, steps_per_iteration=8, iterations=1)
-    with pytest.raises(ConfigError, match="elevation_encoder=cost_to_go"):
-        imitate(model, venv, cfg, seed=0, tracker=Tracker())
-    venv.close()
 
 
 def test_an_off_policy_actor_says_the_log_std_is_not_applied(tmp_path, capsys):
