@@ -180,8 +180,8 @@ def detour_latency(ctx: BenchContext) -> list[Figure]:
     repeats of each run's p50 and p99."""
     import time
 
-    from diana_lab.candidates import candidate_offsets, turned
     from diana_lab.config import compose, to_object
+    from diana_lab.core.candidates import candidate_offsets, turned
     from diana_lab.shield import ShieldSettings, SlopeShield
 
     cfg = compose(["+experiment=reference"])

@@ -66,7 +66,7 @@ class TinyRendererDepth:
     def __init__(self, client: int, cam: Any, width: int = TINY_SIZE, height: int = TINY_SIZE) -> None:
         import pybullet as p
 
-        from diana_lab.rotations import pitch_matrix
+        from diana_lab.core.rotations import pitch_matrix
 
         self._p, self.client, self.cam = p, client, cam
         self.width, self.height = width, height
@@ -77,7 +77,7 @@ class TinyRendererDepth:
         self._proj = p.computeProjectionMatrixFOV(cam.vfov_deg, aspect, self.near, self.far)
 
     def render(self, position: np.ndarray, rpy: np.ndarray) -> np.ndarray:
-        from diana_lab.rotations import rpy_matrix
+        from diana_lab.core.rotations import rpy_matrix
 
         p = self._p
         rot = rpy_matrix(rpy)

@@ -42,7 +42,7 @@ class ElevationMapConfig:
     ``+-height_clip``; a second channel marks cells that received any point.
 
     ``memory: true`` fuses every frame of the episode into a world-frame map (``memory_radius`` around the
-    episode's first pose, :class:`diana_lab.height_memory.HeightMemory`) and shows its window instead of the
+    episode's first pose, :class:`diana_lab.core.height_memory.HeightMemory`) and shows its window instead of the
     current frame alone: cells seen earlier stay known after they leave the field of view.
     """
 

@@ -14,7 +14,7 @@ encoder saw:
 
 Every encoder first drops the points the trained sensor could not have returned (outside its range or
 field of view). An ``elevation_map`` trained with ``memory: true`` keeps the episode's map
-(:class:`~diana_lab.height_memory.HeightMemory`, the class the training encoder uses): call
+(:class:`~diana_lab.core.height_memory.HeightMemory`, the class the training encoder uses): call
 :meth:`CloudEncoder.reset` (``Navigator.reset``) whenever a new goal starts a new traverse.
 """
 
@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
+from diana_lab.core.height_memory import HeightMemory
+from diana_lab.core.rotations import level_points
 from diana_lab.deploy.geometry import SensorModel
 from diana_lab.deploy.inputs import Pose
 from diana_lab.deploy.spec import EncodingSpec, SensorSpec
-from diana_lab.height_memory import HeightMemory
-from diana_lab.rotations import level_points
 
 __all__ = ["CloudEncoder", "DepthImage", "ElevationMap", "Points", "make_cloud_encoder"]
 

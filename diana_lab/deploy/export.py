@@ -41,10 +41,10 @@ import torch
 from gymnasium import spaces
 from torch import nn
 
-from diana_lab.candidates import candidate_offsets
 from diana_lab.config import ConfigError
 from diana_lab.config.env import ActionSpaceConfig, EpisodeConfig
 from diana_lab.config.sensing import SensorConfig
+from diana_lab.core.candidates import candidate_offsets
 from diana_lab.deploy.sidecar import action_spec, expected_shape, observation_statistics, policy_spec
 from diana_lab.deploy.spec import ActionSpec, PolicySpec, sidecar_path
 

@@ -1,6 +1,6 @@
 """Frames and ray patterns of the trained sensor, in numpy only (no open3d, no gymnasium, no torch).
 
-Rotations come from :mod:`diana_lab.rotations` (numpy only, shared with the simulator). These mirror
+Rotations come from :mod:`diana_lab.core.rotations` (numpy only, shared with the simulator). These mirror
 :func:`diana_lab.sensing.camera.pinhole_pattern` and
 :func:`diana_lab.sensing.lidar.lidar_pattern` (the tests hold them against each other): the runtime must
 not import :mod:`diana_lab.sensing`, which pulls in open3d and gymnasium at import time.
@@ -16,8 +16,8 @@ import math
 
 import numpy as np
 
+from diana_lab.core.rotations import leveling_matrix, pitch_matrix, rpy_matrix
 from diana_lab.deploy.spec import SensorSpec
-from diana_lab.rotations import leveling_matrix, pitch_matrix, rpy_matrix
 
 __all__ = ["SensorModel", "leveling_matrix", "optical_to_body", "pitch_matrix", "rpy_matrix"]
 

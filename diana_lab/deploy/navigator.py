@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from diana_lab.candidates import candidate_offsets, turned
+from diana_lab.core.candidates import candidate_offsets, turned
 from diana_lab.deploy.encoding import CloudEncoder, make_cloud_encoder
 from diana_lab.deploy.inputs import Pose, check_cloud, check_goal, goal_vector
 from diana_lab.deploy.spec import PolicySpec, sidecar_path

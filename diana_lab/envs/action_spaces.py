@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
-from diana_lab.candidates import candidate_offsets, turned
 from diana_lab.config.env import ActionSpaceConfig
+from diana_lab.core.candidates import candidate_offsets, turned
 from diana_lab.envs import ActionError  # defined there, free of imports: diana_lab.ActionError
 
 QUARTER_PI = math.pi / 4.0

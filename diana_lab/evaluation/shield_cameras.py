@@ -25,7 +25,7 @@ __all__ = ["ShieldCameras", "turned_attitude"]
 
 def turned_attitude(rpy: np.ndarray, yaw_deg: float) -> np.ndarray:
     """The roll, pitch, yaw (ZYX) of a body with attitude ``rpy`` turned by ``yaw_deg`` about its own z axis."""
-    from diana_lab.rotations import rpy_matrix
+    from diana_lab.core.rotations import rpy_matrix
 
     if yaw_deg == 0.0:
         return np.asarray(rpy, dtype=np.float64).copy()

@@ -7,7 +7,7 @@ single-source search is ~10 ms on the 257 x 257 Mars yard; a Python-heap A* is s
 heuristic, because every pop costs microseconds of interpreter time. The last few searches are cached per
 start cell, so many goals from one start (an episode sampler) cost one search. A map used for one question
 only (a knowledge-limited expert's, new every step) is searched by the compiled, bounded
-:func:`~diana_lab.shield.grid_search.cost_to_go` instead (``next_waypoint(..., full_search=False)``): no
+:func:`~diana_lab.core.grid_search.cost_to_go` instead (``next_waypoint(..., full_search=False)``): no
 graph to build, and it stops once the cells asked about are settled.
 
 Smoothing (:mod:`diana_lab.planning.smoothing`): grid paths turn only in 45 degree steps (up to 8.2 % too
@@ -33,9 +33,9 @@ import numpy as np
 from scipy.sparse import csr_array
 from scipy.sparse.csgraph import dijkstra
 
+from diana_lab.core.grid_search import cost_to_go
 from diana_lab.planning.costmap import CostMap
 from diana_lab.planning.smoothing import corners, segment_costs, smooth_path
-from diana_lab.shield.grid_search import cost_to_go
 
 __all__ = ["Path", "WaypointChoice", "choose_waypoint", "next_waypoint", "plan", "shortest_path_length", "simplify"]
 
@@ -238,7 +238,7 @@ def choose_waypoint(
     Mars yard). The edge costs are symmetric, so one search from the *goal* (cached) serves every start of
     the episode, and a step costs one batch of segment integrals (about a millisecond). With
     ``full_search=False`` the map is searched only until the start and the candidates are settled
-    (:func:`~diana_lab.shield.grid_search.cost_to_go`, nothing cached): the choice for a map that changes
+    (:func:`~diana_lab.core.grid_search.cost_to_go`, nothing cached): the choice for a map that changes
     every step (an expert that knows only what the rover has seen), the same waypoint.
     """
     if not reach > 0.0:

@@ -12,7 +12,7 @@ mask channel says so).
   :data:`UNKNOWN_HEIGHT` where the cell got no point; channel 1 is 1 for cells with points, 0 otherwise.
   The grid is rover-centred and heading-aligned but levelled (gravity up), so roll/pitch do not tilt it.
   With ``memory: true`` the cells come from a world-frame map fused over the episode
-  (:class:`~diana_lab.height_memory.HeightMemory`), so what was seen stays known; :meth:`Encoder.reset`
+  (:class:`~diana_lab.core.height_memory.HeightMemory`), so what was seen stays known; :meth:`Encoder.reset`
   (called by the sensor's ``reset``) clears it.
 * ``points`` ``(n_points, 4)``: the cloud in the rover frame down-sampled to at most ``n_points`` (voxel
   grid then an even subsample, or farthest-point sampling), xyz divided by ``max_range + |mount|`` into
@@ -27,8 +27,8 @@ from gymnasium import spaces
 
 from diana_lab.config.sensing import ElevationMapConfig, PointsConfig, SensorConfig
 from diana_lab.config.validation import ConfigError
-from diana_lab.height_memory import HeightMemory
-from diana_lab.rotations import level_points
+from diana_lab.core.height_memory import HeightMemory
+from diana_lab.core.rotations import level_points
 from diana_lab.sensing.frame import SensorFrame
 
 __all__ = [

@@ -12,7 +12,7 @@ from functools import cached_property
 
 import numpy as np
 
-from diana_lab.rotations import rpy_matrix
+from diana_lab.core.rotations import rpy_matrix
 
 __all__ = ["SensorFrame"]
 

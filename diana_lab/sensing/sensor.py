@@ -17,7 +17,7 @@ import numpy as np
 from gymnasium import spaces
 
 from diana_lab.config.sensing import SensorConfig
-from diana_lab.rotations import pitch_matrix, rpy_matrix
+from diana_lab.core.rotations import pitch_matrix, rpy_matrix
 from diana_lab.sensing.encoders import Encoder, make_encoder
 from diana_lab.sensing.frame import SensorFrame
 from diana_lab.sensing.noise import NoiseModel

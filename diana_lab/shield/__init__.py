@@ -11,7 +11,7 @@ code as the simulator's evaluation:
 * :mod:`~diana_lab.shield.detour`: the detour and the route rule, a least-cost search over the shield's map;
 * :mod:`~diana_lab.shield.site_map`: :class:`SiteMap`, a map of the site made before the drive, which the search
   reads where the shield's map gives no slope;
-* :mod:`~diana_lab.shield.grid_search`: that search (numba), which the A* experts share.
+* :mod:`~diana_lab.core.grid_search`: that search (numba), which the A* experts share.
 """
 
 from diana_lab.shield.detour import Detour, SlopeCost

@@ -14,7 +14,7 @@ The search (:meth:`Detour.costs_to_go`) covers the map within ``margin`` of the 
 A map cell is untraversable where no heading of 0, 45, 90 or 135 degrees crosses it within the tilt check's limit;
 the search's cells are as wide as the rover's track and drivable only when every map cell in them is (a gap
 narrower than the rover is no way through), and not within ``hazard_radius`` of a hazard felt; cells near the goal
-are drivable. With ``relief`` the relief hazards are walls too. :func:`diana_lab.shield.grid_search.cost_to_go`
+are drivable. With ``relief`` the relief hazards are walls too. :func:`diana_lab.core.grid_search.cost_to_go`
 searches it (numba; onboard too).
 
 The slope cost (:class:`SlopeCost`): a drivable cell steeper than ``from_deg`` costs its length times
@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from diana_lab.height_memory import HeightMemory
+from diana_lab.core.height_memory import HeightMemory
 from diana_lab.shield.relief import ReliefLimits, relief_hazards
 from diana_lab.shield.site_map import SiteMap
 
@@ -65,9 +65,9 @@ class SlopeCost:
 
 
 def _cost_to_go() -> Any:
-    """:func:`diana_lab.shield.grid_search.cost_to_go`, imported when first needed (it needs numba)."""
+    """:func:`diana_lab.core.grid_search.cost_to_go`, imported when first needed (it needs numba)."""
     try:
-        from diana_lab.shield.grid_search import cost_to_go
+        from diana_lab.core.grid_search import cost_to_go
     except ImportError as exc:  # the onboard runtime without numba
         raise ValueError(
             "the slope shield's detour (detour_after > 0) needs numba (pip install numba): " + str(exc)

@@ -31,8 +31,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from diana_lab.height_memory import HeightMemory
-from diana_lab.rotations import level_points
+from diana_lab.core.height_memory import HeightMemory
+from diana_lab.core.rotations import level_points
 from diana_lab.shield.detour import Detour
 from diana_lab.shield.relief import ReliefLimits, relief_judgement
 from diana_lab.shield.settings import ShieldSettings

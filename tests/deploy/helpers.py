@@ -19,8 +19,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from diana_lab.agents.factory import build_model
 from diana_lab.config import compose, to_object
 from diana_lab.config.evaluation import EvalConfig
+from diana_lab.core.rotations import pitch_matrix
 from diana_lab.envs.rover_nav import RoverNavEnv
-from diana_lab.rotations import pitch_matrix
 from diana_lab.sim.world import World
 from tests.presets import CAMERA_SQUARE
 

@@ -39,7 +39,7 @@ def test_importing_and_running_the_runtime_needs_no_torch_pybullet_open3d_or_hyd
 
 
 def test_geometry_matches_the_training_patterns(depth_run):
-    # (the rotations themselves are shared with the simulator: diana_lab.rotations)
+    # (the rotations themselves are shared with the simulator: diana_lab.core.rotations)
     # every ray of the trained sensors lands in its own pixel
     spec = PolicySpec.load(sidecar_path(depth_run.onnx)).sensor
     for sensor, pattern in [

@@ -9,8 +9,8 @@ import pytest
 
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.config.evaluation import ShieldCameraConfig, ShieldConfig
+from diana_lab.core.rotations import rpy_matrix
 from diana_lab.evaluation.shield_cameras import ShieldCameras, turned_attitude
-from diana_lab.rotations import rpy_matrix
 from diana_lab.shield import ShieldSettings, SlopeShield
 
 ROBOT = to_object("robot", "jackal")

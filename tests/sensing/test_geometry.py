@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from diana_lab.rotations import leveling_matrix, rpy_matrix
+from diana_lab.core.rotations import leveling_matrix, rpy_matrix
 from diana_lab.sensing.camera import pinhole_pattern
 from tests.sensing.conftest import box, make_sensor, plane_world
 

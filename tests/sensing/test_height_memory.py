@@ -9,7 +9,7 @@ import pytest
 
 from diana_lab.config import ConfigError
 from diana_lab.config.sensing import ElevationMapConfig
-from diana_lab.height_memory import HeightMemory
+from diana_lab.core.height_memory import HeightMemory
 from tests.sensing.conftest import box, make_sensor, plane_world
 
 MEMORY = ElevationMapConfig(

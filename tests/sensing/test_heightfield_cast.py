@@ -10,7 +10,7 @@ import pytest
 from omegaconf import OmegaConf
 
 from diana_lab.config import ConfigError, compose, to_object
-from diana_lab.rotations import pitch_matrix, rpy_matrix
+from diana_lab.core.rotations import pitch_matrix, rpy_matrix
 from diana_lab.sensing.camera import pinhole_pattern
 from diana_lab.sensing.heightfield_cast import heightfield_for, pose_rays
 from diana_lab.sensing.lidar import lidar_pattern

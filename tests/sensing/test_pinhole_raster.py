@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from diana_lab.rotations import pitch_matrix, rpy_matrix
+from diana_lab.core.rotations import pitch_matrix, rpy_matrix
 from diana_lab.sensing.camera import pinhole_pattern
 from diana_lab.sensing.heightfield_cast import heightfield_for
 from diana_lab.sensing.lidar import lidar_pattern

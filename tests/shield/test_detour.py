@@ -10,9 +10,9 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 
-from diana_lab.candidates import candidate_offsets
 from diana_lab.config import ConfigError, to_object
 from diana_lab.config.evaluation import ShieldConfig
+from diana_lab.core.candidates import candidate_offsets
 from diana_lab.shield import ShieldSettings, SlopeShield
 from diana_lab.shield.detour import Detour
 from tests.shield.test_slope_shield import ground, shield
@@ -158,7 +158,7 @@ def test_a_sidecar_written_before_the_detour_reads_it_as_off():
 
 
 def test_the_detour_needs_numba_and_says_so(monkeypatch):
-    monkeypatch.setitem(sys.modules, "diana_lab.shield.grid_search", None)  # as on a rover without numba
+    monkeypatch.setitem(sys.modules, "diana_lab.core.grid_search", None)  # as on a rover without numba
     with pytest.raises(ValueError, match=r"detour_after > 0.*needs numba"):
         shield(**DETOUR)
     assert shield(top_k=96).detour is None  # the rule off needs nothing

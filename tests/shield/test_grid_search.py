@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
+from diana_lab.core.grid_search import cost_to_go
 from diana_lab.planning import CostMap, build_costmap, next_waypoint
 from diana_lab.planning.paths import _graph
-from diana_lab.shield.grid_search import cost_to_go
 
 
 def _random_costmap(rng, shape=(60, 70), lethal=0.25) -> CostMap:

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from diana_lab.height_memory import HeightMemory
+from diana_lab.core.height_memory import HeightMemory
 from diana_lab.shield.relief import ReliefLimits, footprint_cells, relief_hazards, relief_judgement
 
 CELL = 0.2

@@ -149,7 +149,7 @@ def test_without_a_revisit_radius_places_are_not_kept():
 
 
 def ring(headings: int = 32, distances: tuple[float, ...] = (1.0, 2.0, 3.0)) -> np.ndarray:
-    from diana_lab.candidates import candidate_offsets
+    from diana_lab.core.candidates import candidate_offsets
 
     return candidate_offsets(headings, distances)
 
@@ -312,7 +312,7 @@ def test_a_sharp_crest_stands_over_its_median_but_not_over_its_second_highest_ne
 def test_a_rock_two_cells_wide_is_a_peak_over_all_but_its_own_other_cell(rank, flagged):
     """A 0.3 m rock over two 0.2 m cells: each cell has the other among its neighbours, as high as itself, so it
     stands over the second highest neighbour (and the third) by the rock's height, not over the highest."""
-    from diana_lab.height_memory import HeightMemory
+    from diana_lab.core.height_memory import HeightMemory
 
     m = HeightMemory(0.2, 4.0, 1, 1, 0.0, 0.0)
     rock = lambda x, y: np.where((x > 0.0) & (x < 0.4) & (y > 0.0) & (y < 0.2), 0.3, 0.0)  # noqa: E731
@@ -324,7 +324,7 @@ def test_a_rock_two_cells_wide_is_a_peak_over_all_but_its_own_other_cell(rank, f
 def test_a_peak_beside_unseen_ground_is_not_judged():
     """A cell needs 7 of its 8 neighbours known: a rock whose far side was never seen (its shadow) is not judged
     by it, nor is a map with nothing around the cell."""
-    from diana_lab.height_memory import HeightMemory
+    from diana_lab.core.height_memory import HeightMemory
 
     m = HeightMemory(0.2, 4.0, 1, 1, 0.0, 0.0)  # cells 0.2 m from (-4, -4): the rock's is [0, 0.2) x [0, 0.2)
     pts = ground(lambda x, y: np.where((x > 0.0) & (x < 0.2) & (y > 0.0) & (y < 0.2), 0.3, 0.0), half=1.0)

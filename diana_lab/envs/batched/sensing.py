@@ -5,7 +5,7 @@ window), cast by the same heightfield kernels (:mod:`diana_lab.sensing.heightfie
 near field rasterised by :mod:`diana_lab.sensing.pinhole_raster`), one rover per thread (numba ``prange``). The
 ``depth_image`` and ``elevation_map`` encodings (with and without memory, with the voxel filter) are compiled
 here too, to the scalar encoders' arithmetic (:mod:`diana_lab.sensing.encoders`,
-:class:`~diana_lab.height_memory.HeightMemory`), float32 where they are float32.
+:class:`~diana_lab.core.height_memory.HeightMemory`), float32 where they are float32.
 
 Three things stay per rover, in Python, through the scalar code itself (exact, and slow): sensor noise (each
 rover's :class:`~diana_lab.sensing.noise.NoiseModel`, drawing from that rover's generator), the ``points``
@@ -34,7 +34,7 @@ _NO_BOX = np.array([0, -1, 0, -1], dtype=np.int64)
 
 @_jit(inline="always")
 def _rpy(roll, pitch, yaw):  # pragma: no cover (numba)
-    """:func:`diana_lab.rotations.rpy_matrix`, term for term."""
+    """:func:`diana_lab.core.rotations.rpy_matrix`, term for term."""
     cr, sr = math.cos(roll), math.sin(roll)
     cp, sp = math.cos(pitch), math.sin(pitch)
     cy, sy = math.cos(yaw), math.sin(yaw)
@@ -151,7 +151,7 @@ def depth_batch(rows, ranges, scale, out):  # pragma: no cover (numba)
 
 @_jit(inline="always")
 def _level(cloud, m, roll, pitch, out):  # pragma: no cover (numba)
-    """:func:`diana_lab.rotations.level_points` of ``cloud[:m]`` into ``out[:m]``: float64 products, one
+    """:func:`diana_lab.core.rotations.level_points` of ``cloud[:m]`` into ``out[:m]``: float64 products, one
     rounding to float32."""
     lv = _rpy(roll, pitch, 0.0)
     for j in range(m):

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from diana_lab.height_memory import HeightMemory
+from diana_lab.core.height_memory import HeightMemory
 from diana_lab.sim.pose import PoseEstimate
 from diana_lab.sim.state import RoverState
 
