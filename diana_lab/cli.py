@@ -21,7 +21,8 @@ import hydra
 from hydra.experimental.callback import Callback
 from omegaconf import DictConfig, OmegaConf
 
-from diana_lab.config import CONF_DIR, SCHEMAS, ConfigError, store_schemas, validate
+from diana_lab.config import CONF_DIR, POLICY_CONFIGS, SCHEMAS, ConfigError, store_schemas, validate
+from diana_lab.config.policy import source_overrides
 from diana_lab.errors import UserError, output_file  # noqa: F401  (the entry points' names for them)
 from diana_lab.hydra_run import task_overrides  # noqa: F401
 
@@ -105,6 +106,8 @@ def hydra_app(
             # (a user's MLFLOW_LOGGING_LEVEL still wins)
             os.environ.setdefault("MLFLOW_LOGGING_LEVEL", "WARNING")
             store_schemas()
+            if config_name in POLICY_CONFIGS:  # policy=<path or run id>: policy=model policy.source=<it>
+                sys.argv[1:] = source_overrides(sys.argv[1:], CONF_DIR)
             hydra.main(config_path=str(CONF_DIR), config_name=config_name, version_base="1.3")(guarded)()
 
         main.task = task  # type: ignore[attr-defined]

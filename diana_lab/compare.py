@@ -22,7 +22,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from diana_lab.cli import hydra_app
-from diana_lab.config.validation import boolean
+from diana_lab.core.validation import boolean
 
 __all__ = ["main"]
 

@@ -2,10 +2,11 @@
 
 Evaluates one policy on the fixed suite (``eval.episodes`` episodes from ``eval.seed``) and writes
 ``episodes.csv``, ``summary.json``, ``trajectories.png``, ``tilt.png`` and ``episode_0.gif`` into the Hydra
-run directory; ``output=`` also writes the summary JSON there. ``policy=`` is ``straight``, ``astar``,
-``pretrained``, a Stable-Baselines3 ``.zip`` (``vecnormalize.pkl`` beside it is applied, a checkpoint's own
-``rl_model_vecnormalize_<n>_steps.pkl`` for ``rl_model_<n>_steps.zip``; a run trained with ``algo.normalize``
-without them is refused) or the MLflow run id of a training run (see :mod:`diana_lab.evaluation.loading`)::
+run directory; ``output=`` also writes the summary JSON there. ``policy=`` is an option of ``conf/policy/``
+(``straight``, ``astar``, ``pretrained``, ...), a Stable-Baselines3 ``.zip`` (``vecnormalize.pkl`` beside it is
+applied, a checkpoint's own ``rl_model_vecnormalize_<n>_steps.pkl`` for ``rl_model_<n>_steps.zip``; a run trained
+with ``algo.normalize`` without them is refused) or the MLflow run id of a training run (see
+:mod:`diana_lab.evaluation.loading`)::
 
     python -m diana_lab.evaluate policy=astar world=mars_yard eval.episodes=100 output=astar.json
     python -m diana_lab.evaluate policy=<run id> +experiment=quick eval.dynamics=physics   # kinematic-trained
@@ -146,10 +147,12 @@ def run(
     from diana_lab.evaluation.tracking import log_evaluation, tracking_settings
     from diana_lab.tracking.mlflow_run import writable_store
 
-    if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
+    if cfg.get("policy") is None:
+        from diana_lab.evaluation.loading import POLICY_NAMES
+
         raise UserError(
-            "policy: expected policy=straight, astar, pretrained, a model .zip path or an MLflow "
-            "run id, e.g. python -m diana_lab.evaluate policy=astar"
+            f"policy: expected an option of conf/policy/ ({', '.join(POLICY_NAMES)}, pretrained), a model .zip "
+            "path or an MLflow run id, e.g. python -m diana_lab.evaluate policy=astar"
         )
     eval_cfg = to_object("eval", cfg.eval)
     # where the results go is checked before the evaluation, so a bad path does not waste it
@@ -157,7 +160,7 @@ def run(
     enabled, uri, _ = tracking_settings(cfg)
     if enabled and uri:
         writable_store(uri)
-    loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
+    loaded = load_policy(cfg.policy, cfg, eval_cfg)
     if loaded.note:
         print(f"{loaded.label}: {loaded.note}")
     trained_robot = OmegaConf.select(loaded.train_cfg, "robot.name", default=None) if loaded.train_cfg else None

@@ -1,4 +1,4 @@
-"""The package's imports point one way: core <- sim <- sensing/planning/shield <- envs <- agents/tracking <-
+"""The package's imports point one way: core <- sim <- sensing/planning/shield <- envs <- agents/experts/tracking <-
 training/evaluation/deploy/... <- entry points; and the onboard runtime imports no torch, PyBullet or Hydra.
 
 Read from the source (every ``import`` statement, those inside functions too), so a late import that dodges a
@@ -27,6 +27,7 @@ LAYERS = {
     "planning": 4,
     "envs": 5,
     "agents": 6,
+    "experts": 6,
     "tracking": 6,
     "evaluation": 7,
     "deploy": 8,

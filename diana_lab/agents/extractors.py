@@ -19,7 +19,7 @@ from torch import nn
 
 from diana_lab.agents.encoders import ImageCNN, PointNet, mlp
 from diana_lab.agents.strips import CandidateStrips
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 
 __all__ = ["SENSOR_KEYS", "RoverExtractor"]
 

@@ -22,7 +22,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from diana_lab.agents.extractors import RoverExtractor
 from diana_lab.agents.strips import init_logit_head
 from diana_lab.config.algo import NON_SB3_KEYS, AlgoConfig, check_action_space
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 
 __all__ = ["algo_class", "build_model", "load_model", "policy_kwargs"]
 

@@ -26,7 +26,7 @@ import numpy as np
 import yaml
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from diana_lab.config.validation import boolean, positive_int
+from diana_lab.core.validation import boolean, positive_int
 
 __all__ = [
     "MEASUREMENTS",
@@ -146,7 +146,7 @@ class Stopwatch:
 
 
 def flag(cfg: DictConfig, key: str) -> bool:
-    """A true/false option (absent: false), strictly (:func:`~diana_lab.config.validation.boolean`)."""
+    """A true/false option (absent: false), strictly (:func:`~diana_lab.core.validation.boolean`)."""
     return boolean(key, cfg.get(key, False))
 
 

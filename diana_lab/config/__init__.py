@@ -18,19 +18,22 @@ from omegaconf import DictConfig, OmegaConf
 from diana_lab.config import algo as _algo_schemas  # noqa: F401  (registers the algo schemas)
 from diana_lab.config import env as _env_schemas  # noqa: F401  (registers its schemas)
 from diana_lab.config import evaluation as _eval_schema  # noqa: F401  (registers the eval schema)
+from diana_lab.config import policy as _policy_schemas  # noqa: F401  (registers the policy schemas)
 from diana_lab.config import run as _run_schemas  # noqa: F401  (registers train, tracking)
 from diana_lab.config import sensing as _sensor_schemas  # noqa: F401  (registers the sensor schemas)
 from diana_lab.config import sweep as _sweep_schema  # noqa: F401  (registers the sweep schema)
 from diana_lab.config.algo import check_action_space
 from diana_lab.config.store import SCHEMAS, register, store_schemas
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # inside the package: it travels with a wheel
 GROUPS = ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode")
+POLICY_CONFIGS = ("evaluate", "export")  # the top configs with a policy group (policy=<path> read as a source)
 
 __all__ = [
     "CONF_DIR",
     "GROUPS",
+    "POLICY_CONFIGS",
     "ConfigError",
     "build",
     "compose",
@@ -54,12 +57,17 @@ def override_keys(overrides: Sequence[str], deletions: bool = False) -> list[str
 
 
 def compose(overrides: Sequence[str] = (), config_name: str = "config") -> DictConfig:
-    """Compose ``conf/<config_name>.yaml`` with Hydra overrides, outside a Hydra app (tests, env defaults)."""
+    """Compose ``conf/<config_name>.yaml`` with Hydra overrides, outside a Hydra app (tests, env defaults);
+    ``policy=<path or run id>`` reads as on the command line (:func:`diana_lab.config.policy.source_overrides`)."""
     from hydra import compose as hydra_compose
     from hydra import initialize_config_dir
     from hydra.core.global_hydra import GlobalHydra
 
     store_schemas()
+    if config_name in POLICY_CONFIGS:
+        from diana_lab.config.policy import source_overrides
+
+        overrides = source_overrides(overrides, CONF_DIR)
     if GlobalHydra.instance().is_initialized():
         return hydra_compose(config_name=config_name, overrides=list(overrides))
     with initialize_config_dir(config_dir=str(CONF_DIR), version_base="1.3"):

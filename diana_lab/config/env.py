@@ -10,7 +10,7 @@ from typing import Any
 from omegaconf import MISSING
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import ConfigError, in_range, non_negative, one_of, ordered, positive
+from diana_lab.core.validation import ConfigError, in_range, non_negative, one_of, ordered, positive
 
 SHAPES = ("square", "circle", "discrete")
 

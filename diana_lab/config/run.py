@@ -7,7 +7,7 @@ import re
 from dataclasses import dataclass, field
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import (
+from diana_lab.core.validation import (
     ConfigError,
     in_range,
     non_negative_int,
@@ -94,8 +94,8 @@ class TrainConfig:
     progress_bar: bool = True
     final_eval: bool = True  # evaluate the final model on eval.episodes episodes (episodes.csv, plots, GIF)
     device: str = "cpu"
-    # 1: these networks are tiny, and a second OpenMP thread spin-waits against the env for the same cores
-    # (a 16 x 12 convolution: 10 ms with 2 threads, 0.06 ms with 1, on a 2-core machine). 0: torch's default
+    # 1: while the rovers step, a second OpenMP thread spin-waits against the env for the same cores (a small
+    # network's forward pass is many times slower with 2 threads than with 1 on 2 cores). 0: torch's default
     torch_threads: int = 1
     # torch threads for the gradient updates between rollouts: the envs wait then, so their cores are free
     # (0: every core this process may use); train.torch_threads applies again at the next rollout

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from omegaconf import MISSING
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import (
+from diana_lab.core.validation import (
     ConfigError,
     boolean,
     in_range,

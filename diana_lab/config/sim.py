@@ -7,7 +7,7 @@ from typing import ClassVar
 
 from omegaconf import MISSING
 
-from diana_lab.config.validation import ConfigError, check_seed, in_range, non_negative, ordered, positive
+from diana_lab.core.validation import ConfigError, check_seed, in_range, non_negative, ordered, positive
 
 # ----------------------------------------------------------------------------------------------- world
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from diana_lab.config.store import register
-from diana_lab.config.validation import ConfigError, check_seed, one_of, positive
+from diana_lab.core.validation import ConfigError, check_seed, one_of, positive
 
 SAMPLERS = ("tpe", "random", "cmaes")
 PRUNERS = ("median", "successive_halving", "none")

@@ -16,7 +16,7 @@ from typing import Any
 from omegaconf import DictConfig, OmegaConf
 
 from diana_lab.config import ConfigError
-from diana_lab.config.validation import positive_int
+from diana_lab.core.validation import positive_int
 from diana_lab.deploy.export import check_opset, check_output, export_policy
 from diana_lab.deploy.sidecar import action_spec, encoding_spec, sensor_spec
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
@@ -36,7 +36,8 @@ def chosen_keys(cfg: DictConfig, overrides: Sequence[str] | None) -> set[str]:
     composed outside Hydra (``overrides`` None) can show."""
     from diana_lab.config import compose, override_keys
 
-    named = override_keys(overrides or ())
+    # shield=<option> chooses every key of eval.shield, the group's package
+    named = ["eval.shield" if n == "shield" else n for n in override_keys(overrides or ())]
     default = compose([], config_name="export")
     chosen = set()
     for group in (*TRAINED_GROUPS, "eval"):
@@ -159,7 +160,7 @@ def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
     from diana_lab.errors import UserError, output_file
     from diana_lab.evaluation.loading import load_policy
 
-    if OmegaConf.is_missing(cfg, "policy") or cfg.policy is None:
+    if cfg.get("policy") is None:
         raise UserError(
             "policy: expected policy=<MLflow run id | model .zip or run folder | pretrained>, e.g. "
             "python -m diana_lab.export policy=outputs/run/model output=policy.onnx"
@@ -171,9 +172,9 @@ def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
     chosen = chosen_keys(cfg, overrides)
     # loaded without the shield: the export takes the bare policy, and decides the shield once it knows the training's
     eval_cfg = dataclasses.replace(to_object("eval", cfg.eval), shield=ShieldConfig())
-    loaded = load_policy(str(cfg.policy), cfg, eval_cfg)
+    loaded = load_policy(cfg.policy, cfg, eval_cfg)
     if loaded.model is None:
-        raise UserError(f"policy={cfg.policy}: a classical baseline, not a trained policy; nothing to export")
+        raise UserError(f"policy={loaded.label}: a classical baseline, not a trained policy; nothing to export")
     train_cfg = loaded.train_cfg
     if train_cfg is None:
         print(
@@ -191,7 +192,7 @@ def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
         return to_object(name, node)
 
     source = {
-        "policy": str(cfg.policy),
+        "policy": str(cfg.policy.get("source")),  # the run id, path or 'pretrained' it was exported from
         "label": loaded.label,
         "run_id": loaded.run_id,
         "config": "training" if train_cfg is not None else "command line",

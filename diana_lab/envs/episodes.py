@@ -15,7 +15,7 @@ import numpy as np
 
 from diana_lab.config.env import EpisodeConfig
 from diana_lab.config.sim import RobotConfig
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.planning import CostMap, shared_costmap
 from diana_lab.sim.world import World
 

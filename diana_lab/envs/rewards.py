@@ -16,7 +16,7 @@ import numpy as np
 from hydra.utils import get_method
 
 from diana_lab.config.env import RewardConfig
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.sim.state import WaypointResult
 
 

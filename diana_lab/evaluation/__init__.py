@@ -14,10 +14,11 @@ Policies: :class:`StraightLine`, :class:`AStarOracle`, :class:`SB3Policy` (any o
 from diana_lab.config.evaluation import EvalConfig
 from diana_lab.evaluation.core import eval_env, evaluate, summary_table, sweep_sensor_noise
 from diana_lab.evaluation.metrics import SUMMARY_KEYS, mean_ci, spl, summarize, to_json, wilson
-from diana_lab.evaluation.oracle import AStarOracle
-from diana_lab.evaluation.policies import Policy, SB3Policy, StraightLine, waypoint_action
+from diana_lab.evaluation.policies import Policy, SB3Policy, StraightLine
 from diana_lab.evaluation.runner import COLUMNS, EpisodeTrace, run_episodes, run_suite
 from diana_lab.evaluation.suite import EpisodeSpec, make_suite
+from diana_lab.experts import waypoint_action
+from diana_lab.experts.oracle import AStarOracle
 
 __all__ = [
     "COLUMNS",

@@ -1,19 +1,22 @@
-"""Resolve ``policy=`` of ``python -m diana_lab.evaluate`` into a :class:`Policy`.
+"""Resolve the ``policy`` group of ``python -m diana_lab.evaluate`` (and of the export) into a :class:`Policy`.
 
-Accepted values:
+The options (``conf/policy/<name>.yaml``, schemas in :mod:`diana_lab.config.policy`):
 
-* ``straight`` / ``astar`` (the whole map) / ``astar_memory`` (what lay within 12 m of the rover so far: a DAgger
-  expert) -- the classical baselines (:mod:`diana_lab.evaluation.oracle`);
+* ``straight``, ``astar`` (the whole map), ``astar_memory`` (what lay within 12 m of the rover so far: a DAgger
+  expert) -- the classical baselines (:mod:`diana_lab.experts.oracle`), their keys settable
+  (``policy=astar policy.spacing=0.8``);
 * ``astar_seen`` -- ``astar_memory`` on the true cost maps, knowing only the cells the rover's own sensor map has hit
-  (:mod:`diana_lab.evaluation.perceived`; needs ``sensor.elevation_map.memory``; the reference policy's DAgger
+  (:mod:`diana_lab.experts.perceived`; needs ``sensor.elevation_map.memory``; the reference policy's DAgger
   expert);
 * ``bearing`` -- the candidates of ``action_space=discrete`` ranked by the goal's bearing alone
   (:class:`~diana_lab.evaluation.policies.GoalBearing`): with ``eval.shield.enabled`` it drives behind the slope
   shield in the network's place, the non-learnt baseline of what the network adds there;
-* a path to a Stable-Baselines3 ``.zip`` (or a folder holding ``model.zip``); a ``vecnormalize.pkl`` beside
-  it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
-* an MLflow run id (32 hex digits) of a training run, whose artefacts ``model/model.zip``,
-  ``model/vecnormalize.pkl`` and ``.hydra/config.yaml`` are downloaded (the layout the runner logs);
+* ``model`` with ``policy.source`` (``policy=<source>`` for short):
+
+  - a path to a Stable-Baselines3 ``.zip`` (or a folder holding ``model.zip``); a ``vecnormalize.pkl`` beside
+    it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
+  - an MLflow run id (32 hex digits) of a training run, whose artefacts ``model/model.zip``,
+    ``model/vecnormalize.pkl`` and ``.hydra/config.yaml`` are downloaded (the layout the runner logs);
 * ``pretrained`` -- the reference policy shipped in ``diana_lab/assets/policies/reference/`` (``model.zip``,
   its training config ``config.yaml`` and ``card.json``); evaluate it with ``+experiment=reference``, the
   preset it was trained with, so the env gives the observations it expects.
@@ -25,30 +28,32 @@ A model whose observation or action space differs from the env's is refused by t
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import re
 import tempfile
 import zipfile
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from hydra.utils import get_object
 from omegaconf import DictConfig, OmegaConf
 
-from diana_lab.config import ConfigError
+from diana_lab.config import CONF_DIR, ConfigError, to_object
+from diana_lab.config.policy import TRAINED, TrainedPolicyConfig, policy_options
 from diana_lab.errors import UserError
 from diana_lab.evaluation.compatibility import recorded_overrides
-from diana_lab.evaluation.oracle import AStarOracle
-from diana_lab.evaluation.policies import GoalBearing, Policy, SB3Policy, ShieldedPolicy, StraightLine
+from diana_lab.evaluation.policies import GoalBearing, Policy, SB3Policy, ShieldedPolicy
+from diana_lab.experts import check_perceivable
 
 __all__ = [
-    "BASELINES",
     "POLICY_NAMES",
     "PRETRAINED_DIR",
     "LoadedPolicy",
     "load_policy",
     "load_sb3",
+    "policy_config",
 ]
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "assets" / "policies" / "reference"
@@ -234,24 +239,35 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
 
 
-# the classical baselines by name
-BASELINES: dict[str, Callable[[], Policy]] = {
-    "straight": StraightLine,
-    "astar": AStarOracle,
-    # the DAgger expert train.imitation.expert=astar_memory (knowledge_radius 12 m)
-    "astar_memory": lambda: AStarOracle(spacing=0.8, knowledge_radius=12.0, knowledge_memory=True),
-}
-# every policy ``policy=`` accepts by name besides ``pretrained`` (the baselines, and those that read the config)
-POLICY_NAMES = (*BASELINES, "astar_seen", "bearing")
+# every policy ``policy=`` accepts by name besides ``pretrained`` and ``model`` (the files of ``conf/policy/``)
+POLICY_NAMES = tuple(o for o in policy_options(CONF_DIR) if o not in (TRAINED, "pretrained"))
 
 
-def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
-    """The policy named by ``spec`` (see the module docstring); user mistakes raise :class:`UserError`.
+def policy_config(spec: Any) -> Any:
+    """The typed ``policy`` config of ``spec``: the group's node, an option's name, or the source of a trained
+    policy (a path or a run id; what ``policy=<path>`` is short for)."""
+    if isinstance(spec, str):
+        name = spec.strip()
+        return (
+            to_object("policy", name)
+            if name in POLICY_NAMES or name == "pretrained"
+            else TrainedPolicyConfig(source=name)
+        )
+    return to_object("policy", spec)
+
+
+def load_policy(spec: Any, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
+    """The policy of ``spec`` (the ``policy`` group's node, or a name, path or run id: see the module docstring);
+    user mistakes raise :class:`UserError`.
 
     With ``eval.shield.enabled`` a learnt discrete policy (and ``bearing``, a ranking too) drives behind the slope
     shield (:class:`~diana_lab.evaluation.policies.ShieldedPolicy`); the baselines plan for themselves and run
     without it (the note says so)."""
-    loaded = _load(str(spec).strip(), cfg, eval_cfg)
+    try:
+        typed = policy_config(spec)
+    except ConfigError as exc:
+        raise UserError(str(exc)) from exc
+    loaded = _load(typed, cfg, eval_cfg)
     shield = getattr(eval_cfg, "shield", None)  # None: the baselines' callers pass no evaluation settings
     if shield is None or not shield.enabled:
         return loaded
@@ -266,32 +282,41 @@ def load_policy(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     return loaded
 
 
-def _load(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
-    if spec in BASELINES:
-        return LoadedPolicy(BASELINES[spec](), spec)
-    if spec == "bearing":
+def _classical(typed: Any, cfg: DictConfig) -> LoadedPolicy:
+    """A baseline or planner expert built from its option's keys (``policy.<key>``)."""
+    name = typed.name
+    if name == "bearing":
         shape = OmegaConf.select(cfg, "action_space.shape")
         if shape != "discrete":
             raise UserError(
                 f"policy=bearing ranks a discrete action space's candidates, but action_space.shape={shape}; use "
                 "action_space=discrete (or a preset with it, e.g. +experiment=reference)"
             )
-        return LoadedPolicy(GoalBearing(), spec)
-    if spec == "astar_seen":  # reads the env's own sensor map: refuse a config that keeps none
-        from diana_lab.evaluation.perceived import SeenMapOracle, check_perceivable
-
+    if name == "astar_seen":  # reads the env's own sensor map: refuse a config that keeps none
         try:
-            check_perceivable(cfg, f"policy={spec}")
+            check_perceivable(cfg, f"policy={name}")
         except ConfigError as exc:
             raise UserError(str(exc)) from exc
-        return LoadedPolicy(SeenMapOracle(), spec)
+    kwargs = {f.name: getattr(typed, f.name) for f in dataclasses.fields(typed) if f.name not in ("_target_", "name")}
+    try:
+        policy = get_object(typed._target_)(**kwargs)
+    except ValueError as exc:
+        raise UserError(f"policy={name}: {exc}") from exc
+    policy.name = name  # what the plots' titles and the tables call it
+    return LoadedPolicy(policy, name)
+
+
+def _load(typed: Any, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
+    if not isinstance(typed, TrainedPolicyConfig):
+        return _classical(typed, cfg)
+    spec = str(typed.source).strip()
     if spec == "pretrained":
         model_zip = PRETRAINED_DIR / "model.zip"
         if not model_zip.is_file():
             raise UserError(
                 f"policy=pretrained: the reference policy's weights are missing: not shipped with this install "
                 f"(expected '{model_zip}'; reinstall the package with its data). Use a baseline "
-                f"({', '.join(BASELINES)}), a model file (policy=path/to/model.zip) or the "
+                f"({', '.join(POLICY_NAMES)}), a model file (policy=path/to/model.zip) or the "
                 "MLflow run id of a training run."
             )
         loaded = _from_dir(PRETRAINED_DIR, model_zip, eval_cfg, "pretrained")
@@ -308,7 +333,7 @@ def _load(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     if RUN_ID.match(spec):
         return _from_run(spec, cfg, eval_cfg)
     raise UserError(
-        f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected a baseline "
+        f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected an option of conf/policy/ "
         f"({', '.join(POLICY_NAMES)}), 'pretrained', the path of a "
         "Stable-Baselines3 .zip (with vecnormalize.pkl beside it if the run normalised observations) or an MLflow "
         "run id (32 hex digits)."

@@ -23,7 +23,6 @@ from diana_lab.shield import VETO_CHECKS
 
 __all__ = ["MIN_GOAL_SPEED", "SUMMARY_KEYS", "mean_ci", "ratio_ci", "spl", "summarize", "to_json", "wilson"]
 
-Z95 = 1.959963984540054  # two-sided 95 % standard normal quantile
 
 # the summary's keys, in order; each one but the counts ``episodes`` and ``slow_successes`` and ``min_speed_mps`` also
 # gets ``<key>_ci95``; a policy
@@ -73,17 +72,14 @@ RATE_OUTCOMES = {
 }
 
 
-def wilson(successes: int, n: int, z: float = Z95) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion; ``(nan, nan)`` without trials."""
+def wilson(successes: int, n: int) -> tuple[float, float]:
+    """Wilson score 95 % interval of a binomial proportion (scipy's ``binomtest``); ``(nan, nan)`` without trials."""
     if n <= 0:
         return math.nan, math.nan
-    p = successes / n
-    denom = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    ci = stats.binomtest(int(successes), int(n)).proportion_ci(confidence_level=0.95, method="wilson")
     # exact ends at 0 and n successes (the formula gives them up to rounding: 5e-17 is not a rate)
-    lo = 0.0 if successes <= 0 else max(0.0, centre - half)
-    hi = 1.0 if successes >= n else min(1.0, centre + half)
+    lo = 0.0 if successes <= 0 else max(0.0, float(ci.low))
+    hi = 1.0 if successes >= n else min(1.0, float(ci.high))
     return lo, hi
 
 

@@ -9,7 +9,7 @@ the learnt policies.
 * :class:`StraightLine` -- a blind position controller: the next waypoint lies on the straight line to the
   goal, as far as the action space reaches. It collides with, tips over on or gets stuck at whatever lies
   in between; its success rate is how much of the suite needs no perception at all.
-* :class:`~diana_lab.evaluation.oracle.AStarOracle` (in :mod:`diana_lab.evaluation.oracle`) -- knows the
+* :class:`~diana_lab.experts.oracle.AStarOracle` (in :mod:`diana_lab.experts`) -- knows the
   map: plans over the traversability cost map and hands out the path's waypoints. Its success rate is the
   suite's practical ceiling.
 * :class:`GoalBearing` -- a ranking of a discrete action space's candidates that knows only the goal's bearing:
@@ -24,6 +24,7 @@ import gymnasium as gym
 import numpy as np
 
 from diana_lab.envs import GOAL_KEYS
+from diana_lab.experts.actions import waypoint_action
 
 __all__ = [
     "GoalBearing",
@@ -43,25 +44,6 @@ class Policy(Protocol):
     def reset(self, env: gym.Env) -> None: ...
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray: ...
-
-
-def waypoint_action(env: gym.Env, target: np.ndarray) -> np.ndarray:
-    """The action that sends the rover towards world point ``target``, shortened to the action space's reach.
-
-    The offset is scaled down to the action space's extent along its own direction (the disc inscribed in
-    the square, the circle, or the farthest candidate) before :meth:`WaypointMapping.action_for`, which would
-    otherwise clip each axis of a square separately and bend the heading. Continuous: a float32 ``(2,)``
-    array; discrete: the nearest candidate's index, an int64 array of shape ``()`` (what ``Discrete`` holds).
-    """
-    base = env.unwrapped
-    est = base.pose_estimate
-    offset = np.asarray(target, dtype=np.float64)[:2] - est.xy
-    norm = float(np.hypot(*offset))
-    reach = base.mapping.extent * (1.0 - 1e-6)
-    if norm > reach:
-        offset = offset * (reach / norm)
-    action = base.mapping.action_for(offset, est.yaw)
-    return action if base.mapping.discrete else action.astype(np.float32)
 
 
 class StraightLine:

@@ -2,9 +2,8 @@
 
 Why they exist: in physics the rover tips over on relief a cell or two wide that its lidar does not resolve (a
 32-beam lidar's rings lie 0.3 m and more apart beyond 2.5 m, and it leaves the ground near the rover unseen).
-Judged on the true height of every cell within 3.5 m of the rover, the relief check gave the physics validation
-suite 0.92 against v0.13's 0.54; judged on the lidar's map, 0.52. Depth cameras round a mast fill that ground in
-(docs/reference_policy.md, "Hazard cameras"). The network still sees only its own sensor: the cameras change
+Depth cameras round a mast fill that ground in (docs/reference_policy.md, "Hazard cameras", has the figures).
+The network still sees only its own sensor: the cameras change
 what the shield lets through, not what the policy chooses.
 
 Each camera is the platform's :class:`~diana_lab.sensing.camera.DepthCamera` with the env sensor's noise. A

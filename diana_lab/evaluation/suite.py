@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import gymnasium as gym
 import numpy as np
 
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 
 __all__ = ["EpisodeSpec", "make_suite", "reachable_goal"]
 

@@ -17,7 +17,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
-from diana_lab.tracking.names import EVAL_PREFIX, eval_metrics
+from diana_lab.tracking.names import EVAL_PREFIX, EXPERIMENT_TAGS, eval_metrics
 
 __all__ = ["log_evaluation", "log_summary", "metrics_of", "tracking_settings"]
 
@@ -76,7 +76,9 @@ def log_evaluation(
         else:  # artefacts beside an SQLite store, as the training runs keep them
             db = sqlite_path(mlflow.get_tracking_uri())
             experiment_id = client.create_experiment(
-                experiment, artifact_location=(db.parent / "mlruns").as_uri() if db is not None else None
+                experiment,
+                artifact_location=(db.parent / "mlruns").as_uri() if db is not None else None,
+                tags=EXPERIMENT_TAGS,
             )
         run = mlflow.start_run(experiment_id=experiment_id, run_name=name)
     with run:

@@ -27,7 +27,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from diana_lab.config.sim import RobotConfig
-from diana_lab.config.validation import ConfigError, in_range, non_negative, positive
+from diana_lab.core.validation import ConfigError, in_range, non_negative, positive
 from diana_lab.planning.hazards import terrain_hazards
 from diana_lab.sim.world import World
 

@@ -26,9 +26,9 @@ import open3d as o3d
 from gymnasium import spaces
 
 from diana_lab.config.sensing import ElevationMapConfig, PointsConfig, SensorConfig
-from diana_lab.config.validation import ConfigError
 from diana_lab.core.height_memory import HeightMemory
 from diana_lab.core.rotations import level_points
+from diana_lab.core.validation import ConfigError
 from diana_lab.sensing.frame import SensorFrame
 
 __all__ = [

@@ -26,7 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 
 __all__ = ["PRESETS", "SCALED", "NoiseModel", "NoiseParams"]
 

@@ -30,7 +30,7 @@ import numpy as np
 import open3d as o3d
 
 from diana_lab.config.sensing import BACKENDS
-from diana_lab.config.validation import one_of
+from diana_lab.core.validation import one_of
 from diana_lab.sim.world import World
 
 if TYPE_CHECKING:  # imported on first use: numba takes ~0.3 s to import, and encoders-only users never cast

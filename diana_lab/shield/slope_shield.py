@@ -5,7 +5,7 @@ ground it could have seen was too steep; checking the chosen drive on a finer ma
 driven is what a rover's onboard safety layer does ("shielding" a learnt policy). What each rule bought was measured
 on validation suites: docs/reference_policy.md.
 
-The rules (numpy only, so the onboard runtime shares them), in the order :meth:`SlopeShield.choose` applies them:
+The checks and rules (numpy only, so the onboard runtime shares them):
 
 * tilt: along the straight drive, every ``spacing`` metres, the map's heights under the axles (pitch) and the tracks
   (roll); a drive whose tilt passes ``limit_deg`` is vetoed (unseen ground passes). The first allowed of the policy's
@@ -18,8 +18,9 @@ The rules (numpy only, so the onboard runtime shares them), in the order :meth:`
   drive whose footprint holds something standing over its wheel probes or over its neighbours' cells (a rock);
 * places stood on (``revisit_radius``): among the allowed, the first ending away from every earlier position (a
   tabu list: the policy does not know where it has been, and loops were the yard's failures);
-* final approach (``approach_radius``), detour (``detour_after``, :mod:`diana_lab.shield.detour`) and route rule
-  (``route``): near the goal, when stalled, and at every decision, drives chosen by a search over this map;
+* the rules of ``rules`` (:mod:`diana_lab.shield.rules`), asked first in their order: final approach
+  (``approach_radius``), detour (``detour_after``, :mod:`diana_lab.shield.detour`) and route rule (``route``):
+  near the goal, when stalled, and at every decision, drives chosen by a search over this map;
 * relief (``relief``): no drive across cells whose footprint is steep, stepped or rough on the map's mean returns,
   or (``relief_unseen_from``) across ground it cannot judge (:mod:`diana_lab.shield.relief`).
 """
@@ -35,6 +36,7 @@ from diana_lab.core.height_memory import HeightMemory
 from diana_lab.core.rotations import level_points
 from diana_lab.shield.detour import Detour
 from diana_lab.shield.relief import ReliefLimits, relief_judgement
+from diana_lab.shield.rules import RULES, Decision
 from diana_lab.shield.settings import ShieldSettings
 from diana_lab.shield.site_map import SiteMap
 
@@ -414,11 +416,9 @@ class SlopeShield:
     ) -> int:
         """The first of ``ranked`` (candidate indices, the policy's choice first) among its first ``top_k``
         whose drive ``offsets[k]`` (world frame, ``(n, 2)``) is allowed and, with ``revisit_radius``, ends away
-        from the places stood on (else the first allowed); if none is allowed, :meth:`_fallback`'s. With
-        ``approach_radius`` and the goal (world ``goal_xy``) that near, :meth:`approach`'s drive comes first; with
-        ``detour_after`` and the goal, once the rover has stopped gaining on it, :class:`.Detour`'s
-        drive comes next; then, with ``route`` and the goal, the route rule's (:meth:`Detour.route`), when its
-        search finds a way."""
+        from the places stood on (else the first allowed); if none is allowed, :meth:`_fallback`'s. Before that,
+        the rules named in ``rules`` (:mod:`diana_lab.shield.rules`: the final approach, the detour, the route
+        rule), in their order, may decide; those that need the goal (world ``goal_xy``) pass without it."""
         if len(ranked) == 0:
             raise ValueError("SlopeShield.choose: expected at least one ranked candidate, got none")
         self.decisions += 1
@@ -429,23 +429,14 @@ class SlopeShield:
         if self.cfg.revisit_radius > 0 and not (len(self._stood) and (self._stood[-1] == start).all()):
             self._stood = np.concatenate([self._stood, start[None]])  # a rover that has not moved adds nothing
         goal = None if goal_xy is None else np.asarray(goal_xy, dtype=np.float64)[:2]
+        # the stall count moves at every decision, whichever rule is asked first
         stalled = self.cfg.detour_after > 0 and goal is not None and self.detour.stalled(start, goal)
-        if goal is not None and self.cfg.approach_radius > 0:
-            j = self.approach(offsets[top], start, goal)
+        decision = Decision(offsets[top], start, goal, fresh, stalled)
+        for name in self.cfg.rules:
+            j = RULES[name](self, decision)
             if j is not None:
-                self.approaches += 1
                 return int(top[j])
-        if stalled:
-            j = self.detour.choose(self, offsets[top], start, goal, fresh)
-            if j is not None:
-                self.detours += 1
-                return int(top[j])
-        if self.cfg.route and goal is not None:
-            j = self.detour.route(self, offsets[top], start, goal, fresh, self.cfg.route_tolerance)
-            if j is not None:
-                self.routes += int(j != 0)  # turned from the policy's choice
-                return int(top[j])
-        # the policy's own choice first (v0.11 drives it at about half the yard's decisions), then the rest at once
+        # the policy's own choice first (the common case), then the rest at once
         first_failed = self.failed_checks(start, offsets[top[0]])
         first_allowed = not first_failed
         if first_allowed and fresh[0]:
@@ -486,13 +477,8 @@ class SlopeShield:
         """The final approach: with the goal within ``approach_radius`` of ``start_xy``, the index into
         ``offsets`` ``(K, 2)`` (world frame; :meth:`choose` passes its ``top_k``) of the shortest drive passing
         within ``approach_tolerance`` of it (none does: the one passing nearest), if the checks allow it (the
-        place rule does not apply: the goal ends the loop); else None.
-
-        Why: the policy's candidates are ranked for the way, not for the goal itself. Within reach of it the
-        reference policy spent a median 0.7 m (mean 2.4 m) more than the straight way on the Mars yard's
-        successful episodes (its SPL lost 0.045 there); a rover's navigation drives the last metres straight
-        when its safety checks allow them.
-        """
+        place rule does not apply: the goal ends the loop); else None. Why: the policy's candidates are ranked for
+        the way, not for the goal itself; a rover drives the last metres straight when its checks allow them."""
         offsets = np.asarray(offsets, dtype=np.float64).reshape(-1, 2)
         g = np.asarray(goal_xy, dtype=np.float64)[:2] - np.asarray(start_xy, dtype=np.float64)[:2]
         if len(offsets) == 0 or math.hypot(g[0], g[1]) > self.cfg.approach_radius:

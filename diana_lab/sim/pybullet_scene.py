@@ -31,7 +31,7 @@ import pybullet as pb
 import pybullet_data
 
 from diana_lab.config.sim import RobotConfig
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.sim.world import World
 
 ASSETS = Path(__file__).resolve().parents[1] / "assets"

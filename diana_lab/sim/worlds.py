@@ -15,7 +15,7 @@ from scipy.ndimage import gaussian_filter
 from scipy.spatial import ConvexHull
 
 from diana_lab.config.sim import CratersConfig, DemConfig, FlatConfig, HillsConfig, MarsYardConfig
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.sim.terrain import Terrain, grid_from_image
 from diana_lab.sim.world import Obstacle, World
 

@@ -20,6 +20,7 @@ from typing import Any
 
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.mlflow_run import MAX_TAG, resolve_uri, sqlite_path
+from diana_lab.tracking.names import EXPERIMENT_TAGS
 from diana_lab.tracking.params import chunks, truncate
 
 __all__ = ["PARENT_ATTR", "ParentRun", "SweepClient"]
@@ -48,7 +49,7 @@ class SweepClient:
         db = sqlite_path(self.uri)
         location = (db.parent / "mlruns").as_uri() if db is not None else None
         try:
-            return self.client.create_experiment(self.experiment, artifact_location=location)
+            return self.client.create_experiment(self.experiment, artifact_location=location, tags=EXPERIMENT_TAGS)
         except Exception:  # created meanwhile by another worker
             found = self.client.get_experiment_by_name(self.experiment)
             if found is None:

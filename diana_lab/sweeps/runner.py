@@ -29,7 +29,7 @@ from optuna.distributions import FloatDistribution
 from diana_lab import config as C
 from diana_lab.config.run import TrackingConfig
 from diana_lab.config.sweep import SweepConfig
-from diana_lab.config.validation import ConfigError, check_seed
+from diana_lab.core.validation import ConfigError, check_seed
 from diana_lab.sweeps import report
 from diana_lab.sweeps.compose import compose_run, override_keys
 from diana_lab.sweeps.mlflow_runs import PARENT_ATTR, ParentRun, SweepClient

@@ -27,7 +27,7 @@ from hydra.core.override_parser.overrides_parser import OverridesParser
 from hydra.core.override_parser.types import ChoiceSweep, IntervalSweep, Override, RangeSweep, Transformer
 from optuna.distributions import BaseDistribution, CategoricalDistribution, FloatDistribution, IntDistribution
 
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 
 __all__ = ["Param", "SpaceError", "format_value", "parse_entry"]
 

@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 
 from diana_lab.config.sweep import DIRECTIONS, SweepConfig
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.evaluation.metrics import SUMMARY_KEYS
 from diana_lab.sweeps.space import Param, SpaceError, parse_entry
 

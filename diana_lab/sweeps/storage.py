@@ -19,7 +19,7 @@ import optuna
 from optuna.storages import BaseStorage, JournalStorage, RDBStorage
 from optuna.storages.journal import JournalFileBackend
 
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.tracking.mlflow_run import resolve_uri
 
 __all__ = ["dashboard_command", "display_url", "is_rdb", "make_storage", "resolve_storage"]

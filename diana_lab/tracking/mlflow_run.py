@@ -19,8 +19,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.tracking.atomic import uninterrupted
+from diana_lab.tracking.names import EXPERIMENT_TAGS
 from diana_lab.tracking.params import chunks, flatten, truncate
 
 __all__ = ["STATUSES", "MlflowTracker", "Tracker", "resolve_uri", "writable_store"]
@@ -164,7 +165,7 @@ class MlflowTracker(Tracker):
             return found.experiment_id
         db = sqlite_path(self.uri)
         location = (db.parent / "mlruns").as_uri() if db is not None else None
-        return self.client.create_experiment(name, artifact_location=location)
+        return self.client.create_experiment(name, artifact_location=location, tags=EXPERIMENT_TAGS)
 
     @uninterrupted()
     def existing_params(self) -> dict[str, str]:

@@ -19,9 +19,12 @@ from typing import Any
 
 from diana_lab.tracking.params import numeric_metrics
 
-__all__ = ["EVAL_PREFIX", "TAG_GROUPS", "eval_metric", "eval_metrics"]
+__all__ = ["EVAL_PREFIX", "EXPERIMENT_TAGS", "TAG_GROUPS", "eval_metric", "eval_metrics"]
 
 EVAL_PREFIX = "eval_"
+
+# on every experiment the platform creates: MLflow 3's UI then opens it on its runs, not on the GenAI trace overview
+EXPERIMENT_TAGS = {"mlflow.experimentKind": "custom_model_development"}
 
 # the config groups whose chosen option becomes an MLflow tag (filterable in the UI: tags.world = "mars_yard")
 TAG_GROUPS = (

@@ -2,7 +2,7 @@
 
 Why: a rover policy trained from scratch spends most of a CPU budget discovering that steep ground tips it
 over, and the last few per cent of tip-overs are the slowest to go. The receding-horizon A* oracle
-(:class:`~diana_lab.evaluation.oracle.AStarOracle` with ``receding=True``) knows the map and the robot and
+(:class:`~diana_lab.experts.oracle.AStarOracle` with ``receding=True``) knows the map and the robot and
 can say, from *any* state, which waypoint it would send next. DAgger (Ross et al., 2011) turns that into a
 policy over the learner's own observations:
 
@@ -39,6 +39,8 @@ from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
 from diana_lab.config.run import ImitationConfig
+from diana_lab.experts.oracle import AStarOracle
+from diana_lab.experts.perceived import SeenMapOracle
 from diana_lab.tracking.mlflow_run import Tracker
 from diana_lab.training.signals import raise_pending
 
@@ -49,7 +51,6 @@ LABEL_KEY = "expert_action"
 
 def make_expert(cfg: ImitationConfig) -> Any:
     """The expert named by ``train.imitation.expert`` (a :class:`~diana_lab.evaluation.Policy`)."""
-    from diana_lab.evaluation.oracle import AStarOracle
 
     # spacing 0.8 of the action space's reach: the spacing with no tip-overs on the Mars-yard suite
     if cfg.expert == "astar":
@@ -57,8 +58,6 @@ def make_expert(cfg: ImitationConfig) -> Any:
     if cfg.expert == "astar_memory":
         return AStarOracle(spacing=0.8, knowledge_radius=cfg.knowledge_radius, knowledge_memory=True)
     if cfg.expert == "astar_seen":
-        from diana_lab.evaluation.perceived import SeenMapOracle
-
         return SeenMapOracle(knowledge_radius=cfg.knowledge_radius)
     raise ValueError(
         f"train.imitation.expert: unknown expert {cfg.expert!r}; expected one of 'astar', 'astar_memory', 'astar_seen'"

@@ -19,6 +19,8 @@ import gymnasium as gym
 from stable_baselines3.common.callbacks import BaseCallback
 
 from diana_lab.config.evaluation import EvalConfig
+from diana_lab.evaluation import eval_env, make_suite, run_suite, summarize
+from diana_lab.evaluation.policies import sb3_policy
 from diana_lab.tracking.mlflow_run import Tracker
 from diana_lab.tracking.names import eval_metrics
 from diana_lab.training.context import EvalHook
@@ -78,7 +80,6 @@ class PeriodicEvaluation(BaseCallback):
         return True
 
     def env(self) -> gym.Env:
-        from diana_lab.evaluation import eval_env, make_suite
 
         if self._run_env is None:
             self._env = self.make_env()
@@ -88,8 +89,6 @@ class PeriodicEvaluation(BaseCallback):
         return self._run_env
 
     def evaluate(self) -> dict[str, Any]:
-        from diana_lab.evaluation import run_suite, summarize
-        from diana_lab.evaluation.policies import sb3_policy
 
         env = self.env()
         policy = sb3_policy(self.model, self.model.get_vec_normalize_env(), self.cfg)

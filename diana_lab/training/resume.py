@@ -27,7 +27,9 @@ from typing import Any
 import gymnasium as gym
 from omegaconf import DictConfig, OmegaConf
 
+from diana_lab.config import GROUPS
 from diana_lab.errors import UserError
+from diana_lab.evaluation.compatibility import config_differences, recorded_overrides, rerun_advice
 from diana_lab.training.checkpoints import MODEL_RE, Checkpoint, latest_checkpoint
 
 __all__ = [
@@ -193,9 +195,6 @@ def check_resumable(
     config keys of the env groups that differ from the training's (``reward.weights.goal: training 10.0, here
     20.0``)."""
     from stable_baselines3.common.save_util import load_from_zip_file
-
-    from diana_lab.config import GROUPS
-    from diana_lab.evaluation.compatibility import config_differences, recorded_overrides, rerun_advice
 
     train_cfg = OmegaConf.load(resume.config) if resume.config is not None else None
     diffs = config_differences(train_cfg, cfg, GROUPS)

@@ -35,8 +35,12 @@ from diana_lab.agents.factory import build_model, load_model
 from diana_lab.config.algo import AlgoConfig
 from diana_lab.config.evaluation import EvalConfig
 from diana_lab.config.run import TrackingConfig, TrainConfig
-from diana_lab.config.validation import check_seed
+from diana_lab.core.validation import check_seed
 from diana_lab.errors import UserError
+from diana_lab.evaluation import evaluate
+from diana_lab.evaluation.core import sweep_sensor_noise
+from diana_lab.evaluation.policies import sb3_policy
+from diana_lab.experts.perceived import check_perceivable
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.git import git_commit, git_dirty
@@ -295,8 +299,6 @@ class TrainingRun:
             self.tracker.log_artifact(path, "model")
         if not self.train_cfg.final_eval:
             return self.evaluator.last_summary or {}
-        from diana_lab.evaluation import evaluate
-        from diana_lab.evaluation.policies import sb3_policy
 
         out = self.run_dir / "eval"
         env = self.evaluator.env()  # the evaluation env (its dynamics already applied)
@@ -304,8 +306,6 @@ class TrainingRun:
         summary = evaluate(policy, env, self.eval_cfg, out)
         self.tracker.log_metrics(eval_metrics(summary), self.model.num_timesteps)
         if self.eval_cfg.sensor_noise:  # as python -m diana_lab.evaluate does: once per level, the same metric names
-            from diana_lab.evaluation.core import sweep_sensor_noise
-
             levels = sweep_sensor_noise(policy, env, self.eval_cfg, out / "sensor_noise")
             for level, level_summary in levels.items():
                 self.tracker.log_metrics(
@@ -381,8 +381,6 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
         )
     imitation = train_cfg.imitation
     if imitation.enabled and imitation.expert == "astar_seen":  # the expert reads the policy's own sensor map
-        from diana_lab.evaluation.perceived import check_perceivable
-
         check_perceivable(cfg, "train.imitation.expert=astar_seen")
     spaces = check_env(env_config(cfg), seed)  # a bad world, reward term, URDF... fails here, before any MLflow run
     if resume is not None:

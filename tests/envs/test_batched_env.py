@@ -9,7 +9,7 @@ import pytest
 from stable_baselines3.common.vec_env import VecNormalize
 
 from diana_lab import config as C
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.envs import ActionError
 from diana_lab.envs.batched import BatchedRoverEnv
 from diana_lab.training.envs import env_config, shared_world

@@ -106,3 +106,51 @@ def test_the_readmes_list_of_policies_is_the_one_the_program_accepts_and_names()
     with pytest.raises(UserError, match="policy=astr: no such model file") as err:
         load_policy("astr", cfg, to_object("eval", cfg.eval))
     assert f"({', '.join(POLICY_NAMES)})" in str(err.value)
+
+
+def test_every_policy_option_composes_and_builds_with_its_keys():
+    from diana_lab.experts import AStarOracle, SeenMapOracle
+
+    built = {}
+    for name in POLICY_NAMES:
+        cfg = compose([f"policy={name}", "action_space=discrete"], config_name="evaluate")
+        built[name] = load_policy(cfg.policy, cfg, to_object("eval", cfg.eval)).policy
+        assert built[name].name == name
+    assert isinstance(built["astar_seen"], SeenMapOracle)
+    memory = built["astar_memory"]
+    assert isinstance(memory, AStarOracle) and memory.knowledge_radius == 12.0 and memory.knowledge_memory
+    cfg = compose(["policy=astar", "policy.spacing=0.6", "policy.plain=true"], config_name="evaluate")
+    astar = load_policy(cfg.policy, cfg, to_object("eval", cfg.eval)).policy
+    assert (astar.spacing, astar.plain, astar.knowledge_radius) == (0.6, True, None)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "named"),
+    [
+        (["policy=astar", "policy.spacing=1.5"], r"policy\.spacing: expected a number in \[0\.0, 1\.0\], got 1\.5"),
+        (["policy=astar_memory", "policy.knowledge_radius=-2"], r"policy\.knowledge_radius: expected a positive"),
+        (["policy=model"], r"policy\.source: missing, and required for policy=model: a Stable-Baselines3 \.zip"),
+    ],
+)
+def test_a_bad_policy_key_is_refused_naming_it(overrides, named):
+    cfg = compose(overrides, config_name="evaluate")
+    with pytest.raises(UserError, match=named):
+        load_policy(cfg.policy, cfg, to_object("eval", cfg.eval))
+
+
+def test_a_path_or_run_id_given_as_policy_reads_as_the_model_options_source(tmp_path):
+    from diana_lab.config import CONF_DIR
+    from diana_lab.config.policy import source_overrides
+
+    run_id = "0123456789abcdef0123456789abcdef"
+    assert source_overrides(["policy=astar", f"policy={run_id}", "eval.episodes=2"], CONF_DIR) == [
+        "policy=astar",
+        "policy=model",
+        f"policy.source='{run_id}'",
+        "eval.episodes=2",
+    ]
+    odd = tmp_path / "run=1 (copy)" / "model.zip"
+    for name, expected in ((run_id, run_id), (str(odd), str(odd)), ("pretrained", "pretrained")):
+        for config_name in ("evaluate", "export"):
+            assert compose([f"policy={name}"], config_name=config_name).policy.source == expected
+    assert "policy" not in compose([], config_name="evaluate")

@@ -9,7 +9,7 @@ from diana_lab.config import compose
 from diana_lab.core.height_memory import HeightMemory
 from diana_lab.envs.rover_nav import RoverNavEnv
 from diana_lab.evaluation import AStarOracle, EpisodeSpec, run_episodes
-from diana_lab.evaluation.perceived import SeenMapOracle, sensor_hit
+from diana_lab.experts.perceived import SeenMapOracle, sensor_hit
 from diana_lab.sim.terrain import Terrain
 from diana_lab.sim.world import World
 from tests.presets import CAMERA_SQUARE

@@ -97,6 +97,18 @@ def test_tracker_logs_many_params_and_ends_with_status(tmp_path, status):
     assert (tmp_path / "mlruns").is_dir()  # artefacts sit beside the database
 
 
+def test_experiments_the_platform_creates_are_tagged_for_model_development(tmp_path):
+    from diana_lab.sweeps.mlflow_runs import SweepClient
+
+    uri = f"sqlite:///{tmp_path}/m.db"
+    MlflowTracker(uri, "train-exp").end("FINISHED")
+    SweepClient(uri, "sweep-exp").experiment_id()
+    client = MlflowClient(uri)
+    for name in ("train-exp", "sweep-exp"):
+        tags = client.get_experiment_by_name(name).tags
+        assert tags.get("mlflow.experimentKind") == "custom_model_development", name
+
+
 def test_tracker_reopens_a_run(tmp_path):
     uri = f"sqlite:///{tmp_path}/m.db"
     first = MlflowTracker(uri, "exp")

@@ -284,7 +284,7 @@ class BatchedSensor:
     def __init__(self, sensor: RaySensor, n: int) -> None:
         cfg = sensor.cfg
         if cfg.backend != "heightfield":
-            from diana_lab.config.validation import ConfigError
+            from diana_lab.core.validation import ConfigError
 
             raise ConfigError(
                 f"sensor.backend={cfg.backend}: the batched env (train.vec_env=batched) casts with the compiled "

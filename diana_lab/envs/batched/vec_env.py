@@ -33,7 +33,7 @@ import numpy as np
 from gymnasium.utils import seeding
 from stable_baselines3.common.vec_env import VecEnv
 
-from diana_lab.config.validation import ConfigError
+from diana_lab.core.validation import ConfigError
 from diana_lab.envs import ActionError
 from diana_lab.envs.action_spaces import square_to_disc
 from diana_lab.envs.batched.geometry import goal_vectors, moved, place_waypoints

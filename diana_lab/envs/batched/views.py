@@ -1,6 +1,6 @@
 """One rover of the batch seen as a scalar env, for code written against ``RoverNavEnv`` (the DAgger experts).
 
-The planner experts of :mod:`diana_lab.evaluation.oracle` read a scalar env's ``unwrapped`` parts: the pose
+The planner experts of :mod:`diana_lab.experts.oracle` read a scalar env's ``unwrapped`` parts: the pose
 estimate, the goal, the world, the robot, the episode sampler's cost map, the action mapping, the true state and
 (``astar_seen``) the sensor's memory map. A :class:`RoverView` gives them the rover's row of the batch's arrays
 under those names, without copying the map: what the expert reads is what the rover's observation was built from.

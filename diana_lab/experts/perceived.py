@@ -15,7 +15,7 @@ import numpy as np
 
 from diana_lab.config import ConfigError
 from diana_lab.core.height_memory import HeightMemory
-from diana_lab.evaluation.oracle import AStarOracle
+from diana_lab.experts.oracle import AStarOracle
 from diana_lab.planning import CostMap
 
 __all__ = ["SeenMapOracle", "check_perceivable", "sensor_hit"]

@@ -27,6 +27,7 @@ import numpy as np
 from scipy import ndimage as ndi
 
 from diana_lab.config.sim import RobotConfig
+from diana_lab.experts.actions import waypoint_action
 from diana_lab.planning import CostMap, choose_waypoint, plan, simplify
 from diana_lab.sim.world import World
 
@@ -116,10 +117,9 @@ class AStarOracle:
         knowledge_radius: if set (m), the oracle knows the cost maps only this far around the rover and
             takes every other traversable cell as the cheapest ground (implies ``receding``, with one search
             per step). With ``knowledge_fov_deg`` it knows only a cone ahead (plus a 1 m disc), like a
-            forward camera. Without ``knowledge_memory`` it forgets what it saw at the last step: the bound
-            of what a policy that sees only its current frame can reach (``policy=astar_local`` /
-            ``astar_cone``); with it, it keeps a map of everything seen in the episode
-            (``astar_local_memory`` / ``astar_cone_memory``).
+            forward camera. Without ``knowledge_memory`` it forgets what it saw at the last step (a bound on
+            what a policy that sees only its current frame can reach); with it, it keeps a map of everything
+            seen in the episode (``policy=astar_memory``).
     """
 
     name = "astar"
@@ -244,8 +244,6 @@ class AStarOracle:
         self._plan(env, env.unwrapped.pose_estimate.xy)
 
     def act(self, obs: Any, env: gym.Env) -> np.ndarray:
-        from diana_lab.evaluation.policies import waypoint_action
-
         xy = env.unwrapped.pose_estimate.xy
         if self.receding and self._sent is not None:
             self._plan(env, xy)

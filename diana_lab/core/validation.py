@@ -1,4 +1,5 @@
-"""Small checks used by the config dataclasses' ``__post_init__``; each names the key and what was expected."""
+"""Small value checks with messages that name the key and what was expected: the config dataclasses' ``__post_init__``
+and the onboard runtime's shield settings (numpy-free, so the runtime can use them without Hydra)."""
 
 from __future__ import annotations
 
