@@ -11,8 +11,10 @@ for a run folder that cannot be created. What the entry points accept and refuse
 from __future__ import annotations
 
 import functools
+import logging
 import os
 import sys
+import traceback
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -25,6 +27,7 @@ from diana_lab.config import CONF_DIR, POLICY_CONFIGS, SCHEMAS, ConfigError, sto
 from diana_lab.config.policy import source_overrides
 from diana_lab.errors import UserError, output_file  # noqa: F401  (the entry points' names for them)
 from diana_lab.hydra_run import task_overrides  # noqa: F401
+from diana_lab.run_log import console_to_log_file, log_only
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ConfigError, FileNotFoundError, ValueError)
 EXIT_USER_ERROR = 2
@@ -80,6 +83,35 @@ class OutputDirCheck(Callback):
             sys.exit(EXIT_USER_ERROR)
 
 
+class TrackingStoreReady(Callback):
+    """Hydra callback (``hydra.callbacks.tracking_store`` in ``conf/config.yaml``): before a multirun's jobs start
+    in parallel (``hydra/launcher=joblib``, ``submitit_*``), creates the tables of a new SQLite tracking store
+    once, here, so that the jobs do not all find it empty and create them at the same time (MLflow does that
+    unguarded and the losers fail). The basic launcher runs its jobs one after the other and needs none of this."""
+
+    def on_multirun_start(self, config: DictConfig, **kwargs: Any) -> None:
+        target = str(OmegaConf.select(config, "hydra.launcher._target_", default="") or "")
+        if target.endswith("BasicLauncher") or not OmegaConf.select(config, "tracking.enabled", default=False):
+            return
+        uri = OmegaConf.select(config, "tracking.uri", default=None)
+        if not uri or not str(uri).startswith("sqlite:"):
+            return
+        from diana_lab.tracking.mlflow_run import writable_store
+
+        for name in ("mlflow", "alembic"):  # their INFO lines on a new store: noise before the jobs' output
+            logging.getLogger(name).setLevel(logging.WARNING)
+        try:
+            resolved = writable_store(str(uri))
+            from mlflow.tracking import MlflowClient
+
+            MlflowClient(resolved).search_experiments(max_results=1)  # opening the store creates its tables
+        except (*USER_ERRORS, UserError) as exc:
+            if full_error():
+                raise
+            report(exc)
+            sys.exit(EXIT_USER_ERROR)
+
+
 def hydra_app(
     config_name: str = "config", combinations: bool = True
 ) -> Callable[[Callable[[DictConfig], Any]], Callable[[], None]]:
@@ -90,16 +122,21 @@ def hydra_app(
     def decorator(task: Callable[[DictConfig], Any]) -> Callable[[], None]:
         @functools.wraps(task)
         def guarded(cfg: DictConfig) -> Any:
-            try:
-                # every group's range checks before the task imports its stack (torch, open3d, SB3: seconds),
-                # so a bad value fails in about a second; the tasks check again where they build things
-                validate(cfg, [g for g in cfg if g in SCHEMAS], combinations)
-                return task(cfg)
-            except (*USER_ERRORS, UserError) as exc:
-                if full_error():
+            # the console's lines (progress, summaries, notes, errors) also go to the job's log file
+            with console_to_log_file():
+                try:
+                    # every group's range checks before the task imports its stack (torch, open3d, SB3: seconds),
+                    # so a bad value fails in about a second; the tasks check again where they build things
+                    validate(cfg, [g for g in cfg if g in SCHEMAS], combinations)
+                    return task(cfg)
+                except (*USER_ERRORS, UserError) as exc:
+                    if full_error():
+                        raise
+                    report(exc)
+                    sys.exit(EXIT_USER_ERROR)
+                except Exception:  # a bug: Hydra prints the traceback after the job, so the log file gets it here
+                    log_only("the job failed:\n" + traceback.format_exc().rstrip(), logging.ERROR)
                     raise
-                report(exc)
-                sys.exit(EXIT_USER_ERROR)
 
         def main() -> None:
             # MLflow logs at INFO when it creates a store or migrates one: noise around a one-paragraph error

@@ -5,8 +5,8 @@ Evaluates one policy on the fixed suite (``eval.episodes`` episodes from ``eval.
 run directory; ``output=`` also writes the summary JSON there. ``policy=`` is an option of ``conf/policy/``
 (``straight``, ``astar``, ``pretrained``, ...), a Stable-Baselines3 ``.zip`` (``vecnormalize.pkl`` beside it is
 applied, a checkpoint's own ``rl_model_vecnormalize_<n>_steps.pkl`` for ``rl_model_<n>_steps.zip``; a run trained
-with ``algo.normalize`` without them is refused) or the MLflow run id of a training run (see
-:mod:`diana_lab.evaluation.loading`)::
+with ``algo.normalize`` without them is refused), the MLflow run id of a training run or a registered model
+version (``models:/<name>/<version>``, ``models:/<name>@<alias>``; see :mod:`diana_lab.evaluation.loading`)::
 
     python -m diana_lab.evaluate policy=astar world=mars_yard eval.episodes=100 output=astar.json
     python -m diana_lab.evaluate policy=<run id> +experiment=quick eval.dynamics=physics   # kinematic-trained

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import os
 
 import numpy as np
@@ -55,3 +56,14 @@ def world_from_config(overrides: list[str]):
     rest = [o for o in overrides if not o.startswith("world=")]
     cfg = compose(rest, config_name=f"world/{name}")
     return build(to_object("world", cfg.world))
+
+
+@pytest.fixture(autouse=True)
+def _package_loggers_enabled():
+    """An in-process run with ``hydra/job_logging=disabled`` disables every logger that exists then
+    (``disable_existing_loggers``), for the rest of the worker's tests: a later test of a warning would read
+    nothing. Each test starts with the package's loggers on, as a fresh process has them."""
+    for name, logger in list(logging.root.manager.loggerDict.items()):
+        if name.startswith("diana_lab") and isinstance(logger, logging.Logger):
+            logger.disabled = False
+    yield

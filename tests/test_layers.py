@@ -19,6 +19,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "diana_lab"
 LAYERS = {
     "errors": 0,
     "hydra_run": 0,
+    "run_log": 0,
     "core": 0,
     "config": 1,
     "sim": 2,

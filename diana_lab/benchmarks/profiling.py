@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from diana_lab.benchmarks.core import BenchContext
-from diana_lab.benchmarks.envs import DEPTH
+from diana_lab.benchmarks.envs import SCALAR_ENV
 
 __all__ = ["profile_env_step"]
 
@@ -27,7 +27,7 @@ def profile_env_step(ctx: BenchContext, output: Path | None) -> str:
     from diana_lab.training.envs import make_env
 
     steps = ctx.size(3000, 500)
-    env = make_env(ctx.env_groups("dynamics=kinematic", *DEPTH))
+    env = make_env(ctx.env_groups("dynamics=kinematic", *SCALAR_ENV))
     rng = np.random.default_rng(ctx.seed)
     env.reset(seed=ctx.seed)
     for a in rng.uniform(-1.0, 1.0, (50, 2)).astype(np.float32):  # warm-up: lazy scene, caches

@@ -2,8 +2,9 @@
 
 One option per evaluable policy (``conf/policy/<name>.yaml``): the classical baselines and planner experts with
 their keys (``policy=astar policy.spacing=0.8``), ``pretrained`` (the shipped reference policy) and ``model``, a
-trained policy named by ``policy.source`` (a model ``.zip``, a run folder or an MLflow run id). ``policy=<path or
-run id>`` is read as ``policy=model policy.source=<path or run id>`` (:func:`source_overrides`).
+trained policy named by ``policy.source`` (a model ``.zip``, a run folder, an MLflow run id or a registered model
+version, ``models:/<name>/<version>`` or ``models:/<name>@<alias>``). ``policy=<path, run id or models:/...>`` is
+read as ``policy=model policy.source=<it>`` (:func:`source_overrides`, which quotes it for Hydra's grammar).
 """
 
 from __future__ import annotations
@@ -107,7 +108,8 @@ class TrainedPolicyConfig:
         default=MISSING,
         metadata={
             "help": "a Stable-Baselines3 .zip, a run folder holding model/model.zip, an MLflow run id (32 hex "
-            "digits) or pretrained (e.g. policy=outputs/2026-12-06/12-00-00/model)"
+            "digits), a registered model version (models:/<name>/<version> or models:/<name>@<alias>) or "
+            "pretrained (e.g. policy=outputs/2026-12-06/12-00-00/model)"
         },
     )
 

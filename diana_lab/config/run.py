@@ -19,6 +19,8 @@ from diana_lab.core.validation import (
 VEC_ENVS = ("auto", "batched", "dummy", "subproc")
 # torch device strings SB3 accepts ("auto": cuda when available); checked here, not by torch deep in the run
 DEVICE = re.compile(r"^(auto|cpu|mps|cuda(:\d+)?)$")
+# a registered model name that models:/<name>/<version> and models:/<name>@<alias> read back unambiguously
+MODEL_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,255}")
 
 # ----------------------------------------------------------------------------------------------- train
 
@@ -143,12 +145,27 @@ class TrackingConfig:
     run_name: str | None = None  # default: <algo>-<world>-<sensor>-s<seed>
     log_checkpoints: bool = True  # upload every checkpoint (model + vecnormalize) as an artefact
     log_replay_buffer: bool = False  # replay buffers are large: they stay in the Hydra run dir unless true
+    # a name in the MLflow model registry: the run's final policy (its MLflow model policy_model) becomes a new
+    # version of it, loadable as policy=models:/<name>/<version> (or @<alias>) by evaluate and export
+    register_model: str | None = None
 
     def __post_init__(self) -> None:
         if not self.uri.strip():
             raise ConfigError("tracking.uri: expected an MLflow tracking URI such as sqlite:///mlflow.db")
         if not self.experiment.strip():
             raise ConfigError("tracking.experiment: expected a non-empty experiment name")
+        if self.register_model is not None:
+            if not MODEL_NAME.fullmatch(str(self.register_model)):
+                raise ConfigError(
+                    f"tracking.register_model: expected a registered model name of letters, digits, '_', '-' and "
+                    f"'.' (starting with a letter or digit, at most 256 characters; it goes into "
+                    f"models:/<name>/<version>), got {self.register_model!r}"
+                )
+            if not self.enabled:
+                raise ConfigError(
+                    f"tracking.register_model={self.register_model}: registers the run's policy in MLflow, which "
+                    "tracking.enabled=false turns off; drop one of them"
+                )
 
 
 register("train", {"train": TrainConfig})

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import PurePath
 from typing import ClassVar
 
 from omegaconf import MISSING
 
-from diana_lab.core.validation import ConfigError, check_seed, in_range, non_negative, ordered, positive
+from diana_lab.core.validation import ConfigError, boolean, check_seed, in_range, non_negative, ordered, positive
 
 # ----------------------------------------------------------------------------------------------- world
 
@@ -98,25 +99,41 @@ class CratersConfig(FlatConfig):
         ordered("world.rock_size[0]", self.rock_size[0], "world.rock_size[1]", self.rock_size[1])
 
 
+def dem_size_missing(key: str, axis: str, why: str) -> str:
+    """The refusal of a ``world=dem`` size that is left out and cannot be read from the file (``why``)."""
+    return f"{key}: missing, and required for world=dem: the DEM's extent along {axis} in metres ({why})"
+
+
 @dataclass
 class DemConfig(WorldConfig):
     """The user's own elevation model (GeoTIFF/TIFF, PNG 8/16-bit, or .npy)."""
 
     _target_: str = "diana_lab.sim.worlds.dem"
     name: str = "dem"
-    # required: ``help`` is what the refusal of a command line without them says (diana_lab.config.to_object)
+    # required: ``help`` is what the refusal of a command line without it says (diana_lab.config.to_object)
     path: str = field(default=MISSING, metadata={"help": "the elevation file (GeoTIFF/TIFF, 8/16-bit PNG or .npy)"})
-    size_x: float = field(default=MISSING, metadata={"help": "the DEM's extent along x in metres"})
-    size_y: float = field(default=MISSING, metadata={"help": "the DEM's extent along y in metres"})
+    # the extent in metres, first sample to last; null: read from a GeoTIFF's georeferencing (a .png, a .npy or
+    # a TIFF without georeferencing needs both). Given for a GeoTIFF, each must agree with the file's within one
+    # sample spacing, or the world is refused (diana_lab.sim.worlds.dem)
+    size_x: float | None = None
+    size_y: float | None = None
     height_scale: float = 1.0
     height_offset: float = 0.0
     obstacles: list[str] = field(default_factory=list)
+    # cells without a height (a GeoTIFF's nodata value or mask, NaN): false refuses the file, naming how many
+    # and where; true gives each the height of its nearest valid cell, with a warning naming how many
+    fill_nodata: bool = False
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        positive("world.size_x", self.size_x)
-        positive("world.size_y", self.size_y)
+        suffix = PurePath(self.path).suffix.lower()
+        for key, axis, size in (("world.size_x", "x", self.size_x), ("world.size_y", "y", self.size_y)):
+            if size is not None:
+                positive(key, size)
+            elif suffix in (".png", ".npy"):  # never georeferenced: refused now, not when the world is built
+                raise ConfigError(dem_size_missing(key, axis, f"a {suffix} file has no georeferencing"))
         positive("world.height_scale", self.height_scale)
+        boolean("world.fill_nodata", self.fill_nodata)
 
 
 # ----------------------------------------------------------------------------------------------- robot

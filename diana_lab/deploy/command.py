@@ -4,12 +4,15 @@ The graph and its sidecar must describe what the policy was trained with, so ``s
 ``episode`` and ``robot`` come from its training config, and a command-line setting of those that would change
 the files is refused, naming it (:func:`check_overrides`). The slope shield comes from the training config too,
 with the command line's ``eval.shield.<key>`` settings laid over it (:func:`export_shield`): an evaluation
-without the shield only changes its numbers, a bundle without it drives without it on the rover.
+without the shield only changes its numbers, a bundle without it drives without it on the rover. A policy from an
+MLflow run (a run id, a registered model version) is logged back to that run as the ONNX model ``policy_onnx``
+(:mod:`diana_lab.deploy.tracking`) when ``tracking.enabled``.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -213,6 +216,20 @@ def run(cfg: DictConfig, overrides: Sequence[str] | None = None) -> PolicySpec:
         source,
         shield,
     )
+    if loaded.run_id is not None and OmegaConf.select(cfg, "tracking.enabled", default=False):
+        import mlflow
+        from mlflow.exceptions import MlflowException
+
+        from diana_lab.deploy.tracking import ONNX_MODEL, log_onnx_model
+
+        try:
+            log_onnx_model(out, loaded.model, loaded.run_id, mlflow.get_tracking_uri())  # the loader's store
+            print(
+                f"logged {out.name} and its sidecar to MLflow run {loaded.run_id} as runs:/{loaded.run_id}/{ONNX_MODEL}"
+            )
+        except (MlflowException, OSError) as exc:  # the files are written and checked: say so, and go on
+            first = (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+            print(f"warning: could not log {out.name} to MLflow run {loaded.run_id} ({first})", file=sys.stderr)
     site_cell = float(spec.shield.get("site_map_cell", 0.0)) if spec.shield is not None else 0.0
     site = f", site_map=SiteMap(heights, origin, {site_cell:g})" if site_cell > 0 else ""
     print(

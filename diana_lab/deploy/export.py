@@ -17,10 +17,12 @@ get any of it subtly wrong:
 Inputs ``goal`` ``(B, 7)`` and the encoding ``(B, ...)`` (batch dynamic); outputs ``offset`` ``(B, 2)`` and
 ``action``: ``(B, 2)``, or for a discrete policy the chosen candidate's index ``(B,)`` (int64) and its
 ``logits`` ``(B, n)`` (the slope shield's ranking; the index is their argmax). So the runtime, which reads
-only ``offset`` unless the sidecar carries a ``shield``, is the same for every action space. The exporter is
-torch's TorchScript-based one (``dynamo=False``): it works offline without onnxscript. It cannot export an
-adaptive average pool whose output does not divide its input (the paper's 112 x 112 camera), so every
-``AdaptiveAvgPool2d`` is replaced by the same average written as two constant matrix products.
+only ``offset`` unless the sidecar carries a ``shield``, is the same for every action space. Opsets from 18 go
+through torch's current exporter (``dynamo=True``, with onnxscript); older ones, the default 17 included (what
+TensorRT 8.6 on JetPack 5/6 parses), through its TorchScript-based one (``dynamo=False``), see
+:func:`exporter_for`. The sidecar's ``source.exporter`` names the one used. The TorchScript exporter cannot export
+an adaptive average pool whose output does not divide its input (the paper's 112 x 112 camera), so every
+``AdaptiveAvgPool2d`` is replaced by the same average written as two constant matrix products (for both).
 
 Importing this module imports torch; :mod:`diana_lab.deploy` itself never does.
 """
@@ -30,6 +32,7 @@ from __future__ import annotations
 import contextlib
 import copy
 import datetime as dt
+import logging
 import math
 import warnings
 from collections.abc import Iterator
@@ -54,10 +57,15 @@ __all__ = [
     "check_opset",
     "check_output",
     "export_policy",
+    "exporter_for",
     "opset_range",
 ]
 
 DEFAULT_OPSET = 17  # what onnxruntime >= 1.14 and TensorRT 8.6 (JetPack 5/6) both run
+# torch's dynamo exporter writes opset 18 and up; for less it runs onnx's version converter, which leaves the strips and
+# points graphs at 18 and gives the categorical head an opset-18 ReduceLogSumExp that the checker refuses at 17: those
+# opsets (the default among them) keep the TorchScript exporter
+DYNAMO_MIN_OPSET = 18
 VERIFY_TOLERANCE = 1e-4  # metres: ONNX vs torch on random observations, checked at every export
 # a discrete policy's argmax at logits closer than this may fall either way between torch and onnxruntime
 # (float rounding); such near-ties are left out of the export check
@@ -252,15 +260,47 @@ def _check_model(model: Any, sensor: SensorConfig, label: str) -> str:
 
 @contextlib.contextmanager
 def _quiet_export() -> Iterator[None]:
-    """No distribution argument checks (data-dependent branches break tracing) and no exporter chatter."""
+    """No distribution argument checks (data-dependent branches break tracing) and no exporter chatter (warnings,
+    and the dynamo exporter's log records, e.g. that torchvision's ops are skipped)."""
     validate = torch.distributions.Distribution._validate_args
     torch.distributions.Distribution.set_default_validate_args(False)
+    log = logging.getLogger("torch.onnx")
+    level = log.level
+    log.setLevel(logging.ERROR)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             yield
     finally:
+        log.setLevel(level)
         torch.distributions.Distribution.set_default_validate_args(validate)
+
+
+def _export_graph(
+    graph: nn.Module, example: tuple[torch.Tensor, ...], output: Path, opset: int, inputs: list[str], outputs: list[str]
+) -> None:
+    """Write ``graph`` to ``output`` at ``opset`` through :func:`exporter_for`'s exporter, batch dynamic; refuse a
+    graph at another opset than asked (the sidecar records it)."""
+    import onnx
+
+    options: dict[str, Any] = {"dynamo": False}
+    if exporter_for(opset) == "dynamo":  # one file, weights inside; no progress lines; onnxscript's graph optimiser
+        options = {"dynamo": True, "external_data": False, "verbose": False, "optimize": True}
+    with _quiet_export(), torch.no_grad():
+        torch.onnx.export(
+            graph,
+            example,
+            str(output),
+            input_names=inputs,
+            output_names=outputs,
+            opset_version=opset,
+            dynamic_axes={n: {0: "batch"} for n in (*inputs, *outputs)},
+            **options,
+        )
+    imports = onnx.load(str(output), load_external_data=False).opset_import
+    got = next((o.version for o in imports if o.domain in ("", "ai.onnx")), None)
+    if got != opset:
+        raise RuntimeError(f"the {exporter_for(opset)} exporter wrote opset {got}, not {opset}")
 
 
 def _samples(model: Any, key: str, n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -284,14 +324,18 @@ def _decisive(reference: ExportablePolicy, goal: np.ndarray, enc: np.ndarray, ke
     return (top[:, 0] - top[:, 1]).numpy() >= LOGIT_TIE
 
 
+def exporter_for(opset: int) -> str:
+    """``"dynamo"`` (torch's current exporter) from :data:`DYNAMO_MIN_OPSET` on, else ``"torchscript"``."""
+    return "dynamo" if opset >= DYNAMO_MIN_OPSET else "torchscript"
+
+
 def opset_range() -> tuple[int, int]:
-    """The opsets torch's TorchScript exporter supports (below, it writes graphs the onnx checker refuses; above,
-    it only warns that they are unsupported), capped by what the installed onnx knows."""
+    """The opsets torch's exporters support: from the TorchScript one's least (below, it writes graphs the onnx
+    checker refuses) to the dynamo one's most, capped by what the installed onnx knows."""
     import onnx
     from torch.onnx import _constants
 
-    high = getattr(_constants, "ONNX_TORCHSCRIPT_EXPORTER_MAX_OPSET", _constants.ONNX_MAX_OPSET)
-    return int(_constants.ONNX_MIN_OPSET), min(int(high), int(onnx.defs.onnx_opset_version()))
+    return int(_constants.ONNX_MIN_OPSET), min(int(_constants.ONNX_MAX_OPSET), int(onnx.defs.onnx_opset_version()))
 
 
 def check_opset(opset: int) -> None:
@@ -301,7 +345,7 @@ def check_opset(opset: int) -> None:
     low, high = opset_range()
     if not low <= opset <= high:
         raise UserError(
-            f"opset={opset}: expected an ONNX opset from {low} to {high} (what torch {torch.__version__}'s exporter "
+            f"opset={opset}: expected an ONNX opset from {low} to {high} (what torch {torch.__version__}'s exporters "
             f"and the installed onnx support); the default, {DEFAULT_OPSET}, runs on onnxruntime >= 1.14 and "
             "TensorRT 8.6"
         )
@@ -363,17 +407,8 @@ def export_policy(
     outputs = ["offset", "action", "logits"] if graph.discrete else ["offset", "action"]
     goal, enc = _samples(model, key, 16, seed=1)
     try:
-        with _quiet_export(), torch.no_grad():
-            torch.onnx.export(
-                graph,
-                (torch.from_numpy(goal0), torch.from_numpy(enc0)),
-                str(output),
-                input_names=["goal", key],
-                output_names=outputs,
-                opset_version=opset,
-                dynamo=False,
-                dynamic_axes={n: {0: "batch"} for n in ("goal", key, *outputs)},
-            )
+        example = (torch.from_numpy(goal0), torch.from_numpy(enc0))
+        _export_graph(graph, example, output, opset, ["goal", key], outputs)
         onnx.checker.check_model(str(output))
         session = ort.InferenceSession(str(output), providers=["CPUExecutionProvider"])
         got = session.run(outputs, {"goal": goal, key: enc})
@@ -412,6 +447,7 @@ def export_policy(
         **(source or {}),
         "algorithm": type(model).__name__,
         "torch": torch.__version__,
+        "exporter": exporter_for(opset),  # torch.onnx.export(dynamo=True) or the TorchScript-based one
         "exported_at": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "export_check_max_error_m": err,
         **({"export_check_max_logit_error": logit_err} if graph.discrete else {}),

@@ -183,8 +183,8 @@ class PolicySpec:
 
             try:
                 ShieldSettings.from_dict(self.shield)
-            except (TypeError, ValueError) as exc:  # an unknown key, a bad value
-                raise ValueError(f"shield: {exc}") from exc
+            except (TypeError, ValueError) as exc:  # an unknown key, a bad value (named as shield.<key> already)
+                raise ValueError(str(exc) if str(exc).startswith("shield") else f"shield: {exc}") from exc
 
     def to_json(self) -> str:
         node = asdict(self)

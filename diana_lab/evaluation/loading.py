@@ -17,6 +17,11 @@ The options (``conf/policy/<name>.yaml``, schemas in :mod:`diana_lab.config.poli
     it is applied, and a ``.hydra/config.yaml`` beside it or one level up is read as the training config;
   - an MLflow run id (32 hex digits) of a training run, whose artefacts ``model/model.zip``,
     ``model/vecnormalize.pkl`` and ``.hydra/config.yaml`` are downloaded (the layout the runner logs);
+  - a version of a registered model, ``models:/<name>/<version>`` or ``models:/<name>@<alias>``
+    (``tracking.register_model``): the version's own files (the policy, its statistics and training config, in
+    the MLflow model's ``policy`` artefact: :mod:`diana_lab.tracking.pyfunc_model`), its training run (the
+    version's source run) recorded as the policy's run -- or, for a version registered from something else, that
+    run's ``model/`` artefacts;
 * ``pretrained`` -- the reference policy shipped in ``diana_lab/assets/policies/reference/`` (``model.zip``,
   its training config ``config.yaml`` and ``card.json``); evaluate it with ``+experiment=reference``, the
   preset it was trained with, so the env gives the observations it expects.
@@ -58,6 +63,9 @@ __all__ = [
 
 PRETRAINED_DIR = Path(__file__).resolve().parents[1] / "assets" / "policies" / "reference"
 RUN_ID = re.compile(r"^[0-9a-f]{32}$")
+REGISTRY = "models:/"
+# models:/<name>/<version> or models:/<name>@<alias> (the names tracking.register_model accepts)
+MODEL_VERSION = re.compile(r"models:/(?P<name>[^/@]+)(?:/(?P<version>[^/@]+)|@(?P<alias>[^/@]+))")
 MODEL_ARTIFACT, VECNORM_ARTIFACT, CONFIG_ARTIFACT, OVERRIDES_ARTIFACT = (
     "model/model.zip",
     "model/vecnormalize.pkl",
@@ -209,17 +217,7 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     import mlflow
     from mlflow.exceptions import MlflowException
 
-    from diana_lab.tracking.mlflow_run import resolve_uri, sqlite_path
-
-    uri = OmegaConf.select(cfg, "tracking.uri", default=None)
-    if uri:
-        db = sqlite_path(resolve_uri(str(uri)))
-        if db is not None and not db.is_file():  # MLflow would create an empty store to look in
-            raise UserError(
-                f"policy={run_id}: looks like an MLflow run id, but tracking.uri={uri} has no store at '{db}'; "
-                "expected the tracking.uri the run was trained with (or a model path)"
-            )
-        mlflow.set_tracking_uri(resolve_uri(str(uri)))
+    _use_store(run_id, cfg)
     with tempfile.TemporaryDirectory(prefix=f"diana_eval_{run_id[:8]}_") as tmp:
         dst = Path(tmp)  # everything is in memory once loaded: the download need not outlive this call
         try:
@@ -237,6 +235,99 @@ def _from_run(run_id: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
             with contextlib.suppress(MlflowException, OSError):
                 mlflow.artifacts.download_artifacts(run_id=run_id, artifact_path=extra, dst_path=str(dst))
         return _from_dir(dst, model_zip, eval_cfg, f"run {run_id}", run_id)
+
+
+def _use_store(spec: str, cfg: DictConfig) -> str:
+    """Point MLflow at ``tracking.uri`` (refusing an SQLite store that is not there: MLflow would create an empty
+    one to look in); the URI used."""
+    import mlflow
+
+    from diana_lab.tracking.mlflow_run import resolve_uri, sqlite_path
+
+    uri = OmegaConf.select(cfg, "tracking.uri", default=None)
+    if uri:
+        db = sqlite_path(resolve_uri(str(uri)))
+        if db is not None and not db.is_file():
+            what = "a registered model" if spec.startswith(REGISTRY) else "an MLflow run id"
+            raise UserError(
+                f"policy={spec}: looks like {what}, but tracking.uri={uri} has no store at '{db}'; "
+                "expected the tracking.uri the run was trained with (or a model path)"
+            )
+        mlflow.set_tracking_uri(resolve_uri(str(uri)))
+    return mlflow.get_tracking_uri()
+
+
+def _model_version(spec: str, client: Any, uri: str) -> Any:
+    """The registry's ``ModelVersion`` of ``spec`` (``models:/<name>/<version>`` or ``models:/<name>@<alias>``);
+    a malformed URI, an unknown name, version or alias raise :class:`UserError` naming what exists."""
+    from mlflow.exceptions import MlflowException
+
+    m = MODEL_VERSION.fullmatch(spec)
+    if m is None or (m["version"] is not None and not m["version"].isdigit()):
+        raise UserError(
+            f"policy={spec}: expected a registered model version, models:/<name>/<version> (a number) or "
+            "models:/<name>@<alias>, e.g. policy=models:/rover_nav/3 or policy=models:/rover_nav@champion"
+        )
+    name, version, alias = m["name"], m["version"], m["alias"]
+    try:
+        registered = client.get_registered_model(name)
+    except MlflowException as exc:
+        known = sorted(r.name for r in client.search_registered_models(max_results=50))
+        listed = ", ".join(known) if known else "none"
+        raise UserError(
+            f"policy={spec}: no registered model '{name}' at tracking URI '{uri}' (registered there: "
+            f"{listed}); a training run registers its policy with tracking.register_model=<name>"
+        ) from exc
+    try:
+        return client.get_model_version(name, version) if version else client.get_model_version_by_alias(name, alias)
+    except MlflowException as exc:
+        versions = sorted(int(v.version) for v in client.search_model_versions(f"name = '{name}'"))
+        aliases = sorted(getattr(registered, "aliases", {}) or {})
+        what = f"version {version}" if version else f"alias '{alias}'"
+        raise UserError(
+            f"policy={spec}: registered model '{name}' has no {what} (versions: "
+            f"{', '.join(map(str, versions)) or 'none'}; aliases: {', '.join(aliases) or 'none'})"
+        ) from exc
+
+
+def _from_registry(spec: str, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
+    """A registered model version (``models:/<name>/<version>`` or ``@<alias>``): its own policy files, its source
+    run as the policy's run (an evaluation is logged as that run's child)."""
+    import mlflow
+    from mlflow.exceptions import MlflowException
+    from mlflow.tracking import MlflowClient
+
+    from diana_lab.tracking.pyfunc_model import MODEL_FILE, POLICY_ARTIFACT, policy_folder
+
+    uri = _use_store(spec, cfg)
+    version = _model_version(spec, MlflowClient(uri), uri)
+    note = f"version {version.version} of registered model '{version.name}'" + (
+        f", trained in MLflow run {version.run_id}" if version.run_id else ""
+    )
+    with tempfile.TemporaryDirectory(prefix="diana_eval_registry_") as tmp:
+        try:
+            local = Path(
+                mlflow.artifacts.download_artifacts(
+                    artifact_uri=f"models:/{version.name}/{version.version}", dst_path=tmp
+                )
+            )
+        except (MlflowException, OSError) as exc:
+            raise UserError(
+                f"policy={spec}: could not fetch the files of version {version.version} of '{version.name}' from "
+                f"tracking URI '{uri}' ({str(exc).splitlines()[0]})"
+            ) from exc
+        folder = policy_folder(local)
+        loaded = _from_dir(folder, folder / MODEL_FILE, eval_cfg, spec, version.run_id) if folder else None
+    if loaded is None and version.run_id and RUN_ID.match(version.run_id):  # registered from elsewhere: its run's
+        loaded = _from_run(version.run_id, cfg, eval_cfg)  # own model/ artefacts
+        loaded.label = spec
+    if loaded is not None:
+        loaded.note = note
+        return loaded
+    raise UserError(
+        f"policy={spec}: version {version.version} of '{version.name}' is not a diana_lab policy (no "
+        f"artifacts/{POLICY_ARTIFACT}/{MODEL_FILE} in it) and names no training run to load one from"
+    )
 
 
 # every policy ``policy=`` accepts by name besides ``pretrained`` and ``model`` (the files of ``conf/policy/``)
@@ -325,6 +416,8 @@ def _load(typed: Any, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
         if card.is_file():
             loaded.note = json.loads(card.read_text()).get("summary")
         return loaded
+    if spec.startswith(REGISTRY):
+        return _from_registry(spec, cfg, eval_cfg)
     path = Path(spec).expanduser()
     if path.is_dir():
         path = path / "model.zip" if (path / "model.zip").is_file() else path / MODEL_ARTIFACT
@@ -335,6 +428,6 @@ def _load(typed: Any, cfg: DictConfig, eval_cfg: Any) -> LoadedPolicy:
     raise UserError(
         f"policy={spec}: no such model file or folder '{path.resolve()}'. Expected an option of conf/policy/ "
         f"({', '.join(POLICY_NAMES)}), 'pretrained', the path of a "
-        "Stable-Baselines3 .zip (with vecnormalize.pkl beside it if the run normalised observations) or an MLflow "
-        "run id (32 hex digits)."
+        "Stable-Baselines3 .zip (with vecnormalize.pkl beside it if the run normalised observations), an MLflow "
+        "run id (32 hex digits) or a registered model version (models:/<name>/<version> or models:/<name>@<alias>)."
     )

@@ -2,9 +2,8 @@
 
 Why it exists: without one the detour's search (and the route rule, :mod:`diana_lab.shield.detour`) takes unseen
 ground as drivable, the free-space assumption. On the Mars yard that sends the rover into pockets closed by
-walls it cannot see from outside: the slowest successes of ``+experiment=reference_hazcams`` drove 68 m for a
-goal 13 m away (docs/reference_policy.md, "The speed target's slow successes"). Rovers rarely go in blind: a
-Mars rover's drives are planned on an orbital elevation model, and a competition yard can be surveyed
+walls it cannot see from outside (docs/reference_policy.md, "The speed target's slow successes"). Rovers rarely
+go in blind: a Mars rover's drives are planned on an orbital elevation model, and a competition yard can be surveyed
 beforehand (the ERC 2022 yard's DEM this project ships is a public model of it, from the Leo Rover simulator).
 With the site's heights, the search judges unseen ground by the same slope rule and slope cost as the ground it
 has seen, and plans round walls before the rover meets them. Wherever the shield's map gives a slope (a cell and its

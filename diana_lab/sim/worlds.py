@@ -6,16 +6,19 @@ the same terrain, a new seed a new one.
 
 from __future__ import annotations
 
+import logging
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
-from scipy.ndimage import gaussian_filter
+from scipy.ndimage import distance_transform_edt, gaussian_filter
 from scipy.spatial import ConvexHull
 
-from diana_lab.config.sim import CratersConfig, DemConfig, FlatConfig, HillsConfig, MarsYardConfig
+from diana_lab.config.sim import CratersConfig, DemConfig, FlatConfig, HillsConfig, MarsYardConfig, dem_size_missing
 from diana_lab.core.validation import ConfigError
+from diana_lab.sim.geotiff import read_geotiff
 from diana_lab.sim.terrain import Terrain, grid_from_image
 from diana_lab.sim.world import Obstacle, World
 
@@ -23,7 +26,9 @@ ASSETS = Path(__file__).resolve().parents[1] / "assets"
 MARS_YARD_DEM = ASSETS / "marsyard2022" / "marsyard2022_terrain_hm.tif"
 MARS_YARD_SIZE = 50.0  # metres, both axes (see assets/marsyard2022/README.md)
 
-__all__ = ["craters", "dem", "flat", "hills", "load_elevation", "mars_yard"]
+__all__ = ["Elevation", "craters", "dem", "flat", "hills", "load_elevation", "mars_yard", "read_elevation"]
+
+log = logging.getLogger(__name__)
 
 
 def _grid_shape(cfg: FlatConfig) -> tuple[int, int]:
@@ -141,21 +146,39 @@ def craters(cfg: CratersConfig) -> World:
 # ----------------------------------------------------------------------------------------------- user DEMs
 
 
+@dataclass(frozen=True)
+class Elevation:
+    """An elevation model read from a file: heights in grid order and, from a GeoTIFF's georeferencing, the
+    spacing of its samples."""
+
+    heights: np.ndarray  # grid order (see diana_lab.sim.terrain), before world.height_scale / height_offset
+    spacing: tuple[float, float] | None  # (dx, dy) metres between samples; None: the file does not say
+
+
 def load_elevation(path: str | Path, key: str = "world.path") -> np.ndarray:
+    """The heights of :func:`read_elevation`, in grid order (cells without a height refused)."""
+    return read_elevation(path, key).heights
+
+
+def read_elevation(path: str | Path, key: str = "world.path", fill_nodata: bool = False) -> Elevation:
     """Read an elevation model in grid order (see :mod:`diana_lab.sim.terrain`).
 
-    TIFF/GeoTIFF and ``.npy`` hold heights in metres; 8- and 16-bit PNGs hold 0..1 of the full scale
-    (multiplied by ``world.height_scale`` afterwards). Image files store their first row at the north edge.
+    TIFF/GeoTIFF (rasterio) and ``.npy`` hold heights in metres; 8- and 16-bit PNGs hold 0..1 of the full scale
+    (multiplied by ``world.height_scale`` afterwards). Image files store their first row at the north edge (a
+    GeoTIFF whose transform says otherwise is turned so). Cells without a height (a GeoTIFF's nodata value or
+    mask, NaN, infinity) are refused, naming how many and where, or with ``fill_nodata`` given the height of
+    their nearest valid cell, with a warning.
     """
     path = Path(path).expanduser()
     if not path.is_file():
         raise ConfigError(f"{key}: file not found: '{path}' (expected a .tif/.tiff, .png or .npy elevation model)")
     suffix = path.suffix.lower()
+    missing: np.ndarray | None = None
+    nodata = spacing = None
     try:
         if suffix in (".tif", ".tiff"):
-            import tifffile
-
-            data = np.asarray(tifffile.imread(path), dtype=np.float64)
+            raster = read_geotiff(path, key)
+            data, missing, nodata, spacing = raster.image, raster.missing, raster.nodata, raster.spacing
         elif suffix == ".png":
             from PIL import Image
 
@@ -173,7 +196,7 @@ def load_elevation(path: str | Path, key: str = "world.path") -> np.ndarray:
         raise ConfigError(f"{key}: could not read '{path}' as an elevation model ({exc})") from exc
     if data.ndim == 3 and data.shape[-1] in (3, 4):  # a grey image saved as RGB(A): its colours must agree
         rgb = data[..., :3]
-        if not np.array_equal(rgb, np.broadcast_to(rgb[..., :1], rgb.shape)):
+        if not np.array_equal(rgb, np.broadcast_to(rgb[..., :1], rgb.shape), equal_nan=True):
             raise ConfigError(
                 f"{key}: '{path}' is a colour image (its red, green and blue differ); expected a greyscale "
                 "elevation model (one height per pixel)"
@@ -181,10 +204,51 @@ def load_elevation(path: str | Path, key: str = "world.path") -> np.ndarray:
         data = data[..., 0]
     if data.ndim != 2 or min(data.shape) < 2:
         raise ConfigError(f"{key}: '{path}' holds an array of shape {data.shape}; expected a 2-D grid of >= 2 x 2")
-    bad = int(np.count_nonzero(~np.isfinite(data)))
-    if bad:
-        raise ConfigError(f"{key}: '{path}' has {bad} NaN or infinite cells; expected finite heights everywhere")
-    return grid_from_image(data)
+    missing = ~np.isfinite(data) if missing is None else missing | ~np.isfinite(data)
+    if missing.any():
+        data = _without_nodata(data, missing, path, key, nodata, spacing, fill_nodata)
+    return Elevation(grid_from_image(data), None if spacing is None else (float(spacing[0]), float(spacing[1])))
+
+
+def _without_nodata(
+    data: np.ndarray,
+    missing: np.ndarray,
+    path: Path,
+    key: str,
+    nodata: float | None,
+    spacing: tuple[float, float] | None,
+    fill: bool,
+) -> np.ndarray:
+    """``data`` (image order) with its cells without a height refused, or filled from the nearest valid cell
+    (nearest in metres where the spacing is known)."""
+    n, total = int(np.count_nonzero(missing)), missing.size
+    rows, cols = np.flatnonzero(missing.any(axis=1)), np.flatnonzero(missing.any(axis=0))
+    what = f"the file's nodata value {nodata:g}, NaN or infinite" if nodata is not None else "NaN or infinite"
+    where = (
+        f"rows {rows[0]}..{rows[-1]}, columns {cols[0]}..{cols[-1]} of its {data.shape[0]} x {data.shape[1]} "
+        "(row 0 = the north edge)"
+    )
+    if n == total:
+        raise ConfigError(f"{key}: '{path}' has no cell with a height: all {n} are without one ({what})")
+    if not fill:
+        raise ConfigError(
+            f"{key}: '{path}' has {n} of {total} cells without a height ({what}) in {where}; expected a height "
+            "in every cell: crop the file to its valid part, or set world.fill_nodata=true to give each the "
+            "height of its nearest valid cell"
+        )
+    sampling = None if spacing is None else (spacing[1], spacing[0])  # image order: rows (y), then columns (x)
+    nearest = distance_transform_edt(missing, sampling=sampling, return_distances=False, return_indices=True)
+    log.warning(
+        "%s: filled %d of %d cells of '%s' without a height (%s; %s) with the height of their nearest valid "
+        "cell (world.fill_nodata=true)",
+        key,
+        n,
+        total,
+        path,
+        what,
+        where,
+    )
+    return data[tuple(nearest)]
 
 
 def _load_mesh(path: str, key: str) -> Obstacle:
@@ -199,8 +263,39 @@ def _load_mesh(path: str, key: str) -> Obstacle:
     return Obstacle(np.asarray(mesh.vertices), np.asarray(mesh.triangles), name=p.stem, convex=False)
 
 
+def _dem_extent(cfg: DemConfig, elevation: Elevation) -> tuple[float, float]:
+    """``(size_x, size_y)``: the config's, or from the file's georeferencing; given both ways, they must agree
+    within one sample spacing (a file's footprint, one spacing wider than its first-to-last extent, agrees)."""
+    given = (("world.size_x", "x", cfg.size_x), ("world.size_y", "y", cfg.size_y))
+    if elevation.spacing is None:
+        missing = [
+            dem_size_missing(k, axis, f"'{cfg.path}' has no georeferencing") for k, axis, v in given if v is None
+        ]
+        if missing:
+            raise ConfigError("; ".join(missing))
+        return float(cfg.size_x), float(cfg.size_y)  # type: ignore[arg-type]
+    ny, nx = elevation.heights.shape
+    sizes = []
+    for (k, axis, value), n, step in zip(given, (nx, ny), elevation.spacing):
+        extent = (n - 1) * step  # first sample to last: the grid's samples are its pixels' centres
+        if value is not None and abs(value - extent) > step * (1.0 + 1e-9):
+            raise ConfigError(
+                f"{k}={value:g} disagrees with '{cfg.path}', whose georeferencing gives {extent:g} m along {axis} "
+                f"({n} samples {step:g} m apart, first to last); leave {k} unset to take the file's, or give a "
+                f"value within one sample ({step:g} m) of it"
+            )
+        sizes.append(extent if value is None else float(value))
+    return sizes[0], sizes[1]
+
+
 def dem(cfg: DemConfig) -> World:
-    """The user's own terrain: an elevation file plus optional obstacle meshes in world coordinates."""
-    heights = load_elevation(cfg.path) * cfg.height_scale + cfg.height_offset
+    """The user's own terrain: an elevation file plus optional obstacle meshes in world coordinates.
+
+    A GeoTIFF's spacing, square or not, is kept as it is (:class:`Terrain` has one spacing per axis); its
+    geographic position is not: the terrain is centred on the world origin as every world is.
+    """
+    elevation = read_elevation(cfg.path, fill_nodata=cfg.fill_nodata)
+    size_x, size_y = _dem_extent(cfg, elevation)
+    heights = elevation.heights * cfg.height_scale + cfg.height_offset
     obstacles = [_load_mesh(path, f"world.obstacles[{i}]") for i, path in enumerate(cfg.obstacles)]
-    return World(cfg.name, Terrain(heights, cfg.size_x, cfg.size_y), obstacles, cfg.seed, cfg.obstacle_resolution)
+    return World(cfg.name, Terrain(heights, size_x, size_y), obstacles, cfg.seed, cfg.obstacle_resolution)

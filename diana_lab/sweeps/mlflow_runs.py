@@ -21,11 +21,12 @@ from typing import Any
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.mlflow_run import MAX_TAG, resolve_uri, sqlite_path
 from diana_lab.tracking.names import EXPERIMENT_TAGS
-from diana_lab.tracking.params import chunks, truncate
+from diana_lab.tracking.params import truncate
 
-__all__ = ["PARENT_ATTR", "ParentRun", "SweepClient"]
+__all__ = ["PARENT_ATTR", "TRACKING_ATTR", "ParentRun", "SweepClient"]
 
 PARENT_ATTR = "mlflow_parent_run_id"
+TRACKING_ATTR = "mlflow_tracking_uri"  # the store the parent run lives in: every worker must use it
 
 
 class SweepClient:
@@ -88,8 +89,7 @@ class SweepClient:
         from mlflow.entities import RunTag
 
         items = {k: truncate(str(v), MAX_TAG) for k, v in tags.items() if v is not None}
-        for batch in chunks(items):
-            self.client.log_batch(run_id, tags=[RunTag(k, v) for k, v in batch.items()])
+        self.client.log_batch(run_id, tags=[RunTag(k, v) for k, v in items.items()])  # MLflow batches a long list
 
     @uninterrupted()
     def log_new_params(self, run_id: str, params: Mapping[str, Any]) -> None:
@@ -98,8 +98,7 @@ class SweepClient:
 
         existing = self.client.get_run(run_id).data.params
         new = {k: truncate(str(v)) for k, v in params.items() if k not in existing}
-        for batch in chunks(new):
-            self.client.log_batch(run_id, params=[Param(k, v) for k, v in batch.items()])
+        self.client.log_batch(run_id, params=[Param(k, v) for k, v in new.items()])
 
     @uninterrupted()
     def log_metrics(self, run_id: str, metrics: Mapping[str, float], step: int) -> None:
@@ -113,8 +112,7 @@ class SweepClient:
             for k, v in metrics.items()
             if isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
         ]
-        for i in range(0, len(items), 1000):
-            self.client.log_batch(run_id, metrics=items[i : i + 1000])
+        self.client.log_batch(run_id, metrics=items)
 
     @uninterrupted()
     def kill_running(self, study_name: str, trial_numbers: list[int]) -> list[str]:

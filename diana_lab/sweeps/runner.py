@@ -5,7 +5,8 @@
 1. the sweep file, the command line and a trial config with every searched key at its low end are checked
    before anything is created, so a typo fails in seconds, naming the file and line, with exit status 2;
 2. the study is created or loaded (several workers, reruns), trials left RUNNING by killed workers of this
-   machine are failed, and the study's MLflow run is created or reopened;
+   machine (with an RDB storage, of any machine whose heartbeats stopped) are failed and their MLflow runs
+   ended KILLED, and the study's MLflow run is created or reopened;
 3. trials run until the study holds ``n_trials`` counted trials (:mod:`diana_lab.sweeps.study`), the timeout
    passes, or Ctrl-C / SIGTERM (the trial FAIL, its run and the study's run KILLED; rerun to continue);
 4. whatever happened, the study's run gets the trials CSV, the plots and the best trial, and the console the
@@ -18,6 +19,7 @@ import dataclasses
 import logging
 import math
 import sys
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,9 +32,10 @@ from diana_lab import config as C
 from diana_lab.config.run import TrackingConfig
 from diana_lab.config.sweep import SweepConfig
 from diana_lab.core.validation import ConfigError, check_seed
+from diana_lab.errors import UserError
 from diana_lab.sweeps import report
 from diana_lab.sweeps.compose import compose_run, override_keys
-from diana_lab.sweeps.mlflow_runs import PARENT_ATTR, ParentRun, SweepClient
+from diana_lab.sweeps.mlflow_runs import PARENT_ATTR, TRACKING_ATTR, ParentRun, SweepClient
 from diana_lab.sweeps.objective import Objective, TrialPlan
 from diana_lab.sweeps.space import Param
 from diana_lab.sweeps.spec import BUDGET_KEYS, SweepSpec, load_spec
@@ -189,10 +192,19 @@ def _parent_run(
         wait_for(lambda: PARENT_ATTR in study.user_attrs, PARENT_WAIT_S)
         run_id = study.user_attrs.get(PARENT_ATTR)
     client = SweepClient(tracking.uri, tracking.experiment)
+    kept = study.user_attrs.get(TRACKING_ATTR)
+    if run_id is not None and kept is not None and kept != client.uri:
+        # on another store the parent run cannot be found: a second parent would be made and the study's
+        # record of the first overwritten
+        raise UserError(
+            f"tracking.uri: this worker's MLflow store is '{client.uri}', but study '{study.study_name}' keeps its "
+            f"runs (parent run {run_id}) in '{kept}'. Give every worker of a study that tracking.uri (an MLflow "
+            "server or a database every machine reaches), or another sweep.name for a new study."
+        )
     parent = ParentRun.open(client, run_id, name, tags)
     if parent.created:
         study.set_user_attr(PARENT_ATTR, parent.run_id)
-        study.set_user_attr("mlflow_tracking_uri", client.uri)
+        study.set_user_attr(TRACKING_ATTR, client.uri)
     return parent
 
 
@@ -247,14 +259,32 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
             print(f"note: {p.key} is set on the command line, so it is not searched", file=sys.stderr)
     tracking = _check(spec, params, cli)
 
+    parent: ParentRun | None = None
+    stale: list[int] = []  # trials of dead workers (any machine) failed by an RDB storage's heartbeats
+
+    def on_stale(study: optuna.Study, trial: optuna.trial.FrozenTrial) -> None:
+        run = parent
+        if run is None:  # at start-up: their runs are ended with the other dead trials' below
+            stale.append(trial.number)
+            return
+        try:
+            run.client.kill_running(name, [trial.number])
+        except Exception as exc:  # the next trial matters more than this run's status
+            print(f"note: could not end trial {trial.number}'s MLflow run ({exc})", file=sys.stderr)
+        print(f"note: trial {trial.number}'s worker stopped sending heartbeats: marked FAIL", file=sys.stderr)
+
     storage_url = resolve_storage(settings.storage)
-    storage = make_storage(storage_url, settings.heartbeat_s)
+    storage = make_storage(storage_url, settings.heartbeat_s, on_stale)
     name = settings.study_name or spec.name
     sampler = make_sampler(settings.sampler, settings.sampler_seed)
     study, created = open_study(
         storage, name, spec.direction, sampler, make_pruner(settings.pruner, settings.pruner_startup_trials)
     )
     dead = fail_dead_trials(study)
+    with warnings.catch_warnings():  # RDB storages: dead workers of other machines too (else a last slot they
+        warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)  # hold would stop every worker)
+        optuna.storages.fail_stale_trials(study)
+    dead += stale
     if dead:
         print(f"note: trial(s) {dead} were left RUNNING by a killed worker: marked FAIL", file=sys.stderr)
     done = len(study.get_trials(deepcopy=False))
@@ -279,7 +309,6 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
         "mlflow.source.git.commit": commit,
     }
     result = SweepResult(name, storage_url, "FAILED")
-    parent: ParentRun | None = None
     plan: TrialPlan | None = None
     status = "FAILED"
     with interrupts_as_exceptions():

@@ -5,14 +5,17 @@
   lock left by a killed worker is broken after its grace period, so nobody waits forever.
 * ``sqlite:///x.db``, ``postgresql+psycopg2://user:pw@host:5432/db``, ``mysql+pymysql://...``: an RDBStorage.
   Workers send a heartbeat every ``heartbeat_s`` seconds; a trial whose worker died (SIGKILL, a lost machine)
-  is failed by the next worker that starts a trial, so it does not stay RUNNING for ever.
+  is failed by the next worker that starts, or starts a trial, so it does not stay RUNNING for ever.
 
 ``optuna-dashboard <storage>`` reads both forms (:func:`dashboard_command`).
 """
 
 from __future__ import annotations
 
+import inspect
+import time
 import warnings
+from collections.abc import Callable
 from pathlib import Path
 
 import optuna
@@ -70,8 +73,23 @@ def _check_journal(path: Path) -> None:
         raise ConfigError(f"sweep.storage={path}: not an Optuna journal file; {EXPECTED}")
 
 
-def make_storage(storage: str, heartbeat_s: int = 60) -> BaseStorage:
-    """The Optuna storage for ``sweep.storage`` (already resolved); a clear error when it cannot be opened."""
+_CREATE_TRIES = 4  # opening an RDB storage whose tables another worker is creating at the same moment
+
+# Optuna >= 4.9 renamed RDBStorage's failed_trial_callback (deprecated since) to heartbeat_stale_trial_callback
+_STALE_KWARG = (
+    "heartbeat_stale_trial_callback"
+    if "heartbeat_stale_trial_callback" in inspect.signature(RDBStorage).parameters
+    else "failed_trial_callback"
+)
+
+
+def make_storage(
+    storage: str,
+    heartbeat_s: int = 60,
+    on_stale: Callable[[optuna.Study, optuna.trial.FrozenTrial], None] | None = None,
+) -> BaseStorage:
+    """The Optuna storage for ``sweep.storage`` (already resolved); a clear error when it cannot be opened.
+    ``on_stale(study, trial)``: RDB storages call it for each trial of a dead worker their heartbeats fail."""
     if not is_rdb(storage):
         _check_journal(Path(storage))
     try:
@@ -79,10 +97,10 @@ def make_storage(storage: str, heartbeat_s: int = 60) -> BaseStorage:
             path = Path(storage)
             path.parent.mkdir(parents=True, exist_ok=True)
             return JournalStorage(JournalFileBackend(str(path)))
-        heartbeat = {"heartbeat_interval": heartbeat_s, "grace_period": 2 * heartbeat_s} if heartbeat_s else {}
-        with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna; we rely on them knowingly
-            warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
-            return RDBStorage(storage, engine_kwargs={"pool_pre_ping": True}, **heartbeat)
+        heartbeat: dict = {}
+        if heartbeat_s:
+            heartbeat = {"heartbeat_interval": heartbeat_s, "grace_period": 2 * heartbeat_s, _STALE_KWARG: on_stale}
+        return _rdb_storage(storage, heartbeat)
     except ImportError as exc:  # e.g. postgresql:// without psycopg2
         raise ConfigError(f"sweep.storage={display_url(storage)}: missing database driver ({exc})") from exc
     except (optuna.exceptions.StorageInternalError, OSError, ValueError) as exc:
@@ -98,6 +116,24 @@ def make_storage(storage: str, heartbeat_s: int = 60) -> BaseStorage:
             first = str(exc).strip().splitlines()[0]
             raise ConfigError(f"sweep.storage={display_url(storage)}: cannot connect ({first})") from exc
         raise
+
+
+def _rdb_storage(storage: str, heartbeat: dict) -> RDBStorage:
+    """Workers starting together on an empty database (several machines, one command) all create Optuna's
+    tables; PostgreSQL fails all but one of them (a duplicate key in its catalogue, or the table already
+    there). The tables are then in place: try again, a few times, rather than stop that worker."""
+    from sqlalchemy.exc import IntegrityError, ProgrammingError
+
+    for attempt in range(_CREATE_TRIES):
+        try:
+            with warnings.catch_warnings():  # heartbeats are "experimental" in Optuna; we rely on them knowingly
+                warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)
+                return RDBStorage(storage, engine_kwargs={"pool_pre_ping": True}, **heartbeat)
+        except (IntegrityError, ProgrammingError):
+            if attempt + 1 == _CREATE_TRIES:
+                raise
+            time.sleep(0.5 * (attempt + 1))
+    raise AssertionError("unreachable")
 
 
 def dashboard_command(storage: str) -> str:

@@ -22,7 +22,7 @@ from typing import Any
 from diana_lab.core.validation import ConfigError
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.names import EXPERIMENT_TAGS
-from diana_lab.tracking.params import chunks, flatten, truncate
+from diana_lab.tracking.params import flatten, truncate
 
 __all__ = ["STATUSES", "MlflowTracker", "Tracker", "resolve_uri", "writable_store"]
 
@@ -165,7 +165,13 @@ class MlflowTracker(Tracker):
             return found.experiment_id
         db = sqlite_path(self.uri)
         location = (db.parent / "mlruns").as_uri() if db is not None else None
-        return self.client.create_experiment(name, artifact_location=location, tags=EXPERIMENT_TAGS)
+        try:
+            return self.client.create_experiment(name, artifact_location=location, tags=EXPERIMENT_TAGS)
+        except Exception:  # a parallel job of the same multirun (hydra/launcher=joblib) created it meanwhile
+            found = self.client.get_experiment_by_name(name)
+            if found is None:
+                raise
+            return found.experiment_id
 
     @uninterrupted()
     def existing_params(self) -> dict[str, str]:
@@ -175,28 +181,22 @@ class MlflowTracker(Tracker):
     def log_params(self, params: dict[str, Any]) -> None:
         from mlflow.entities import Param
 
-        flat = flatten(params)
-        for batch in chunks(flat):
-            self.client.log_batch(self.run_id, params=[Param(k, v) for k, v in batch.items()])
+        # MlflowClient.log_batch splits a long list into the batches the store accepts
+        self.client.log_batch(self.run_id, params=[Param(k, v) for k, v in flatten(params).items()])
 
     @uninterrupted()
     def set_tags(self, tags: dict[str, Any]) -> None:
         from mlflow.entities import RunTag
 
         items = {k: truncate(str(v), MAX_TAG) for k, v in tags.items() if v is not None}
-        for batch in chunks(items):
-            self.client.log_batch(self.run_id, tags=[RunTag(k, v) for k, v in batch.items()])
+        self.client.log_batch(self.run_id, tags=[RunTag(k, v) for k, v in items.items()])
 
     @uninterrupted()
     def log_metrics(self, metrics: dict[str, float], step: int) -> None:
         from mlflow.entities import Metric
 
-        if not metrics:
-            return
         now = int(time.time() * 1000)
-        items = [Metric(k, float(v), now, int(step)) for k, v in metrics.items()]
-        for i in range(0, len(items), 1000):
-            self.client.log_batch(self.run_id, metrics=items[i : i + 1000])
+        self.client.log_batch(self.run_id, metrics=[Metric(k, float(v), now, int(step)) for k, v in metrics.items()])
 
     @uninterrupted()
     def log_artifact(self, path: Path | str, artifact_path: str | None = None) -> None:

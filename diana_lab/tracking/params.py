@@ -1,22 +1,22 @@
 """Turn a resolved config and a summary into what MLflow accepts: flat string params and finite metrics.
 
-MLflow rejects a param value over 6000 characters or a key over 250, and a batch over 100 params; a long
-list (a reward table, an obstacle list) must not crash a run, so values are truncated with a marker and
-over-long keys are skipped.
+MLflow rejects a param value over 6000 characters or a key over 250; a long list (a reward table, an obstacle
+list) must not crash a run, so values are truncated with a marker and over-long keys are skipped. Batching is
+MLflow's own: ``MlflowClient.log_batch`` splits any number of params, tags and metrics into the batches a store
+accepts (100 params or tags, 1000 metrics).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from typing import Any
 
-__all__ = ["MAX_KEY", "MAX_VALUE", "chunks", "flatten", "numeric_metrics", "truncate"]
+__all__ = ["MAX_KEY", "MAX_VALUE", "flatten", "numeric_metrics", "truncate"]
 
 MAX_VALUE = 6000  # mlflow.utils.validation.MAX_PARAM_VAL_LENGTH
 MAX_KEY = 250  # mlflow.utils.validation.MAX_ENTITY_KEY_LENGTH
-BATCH = 100  # mlflow.utils.validation.MAX_PARAMS_TAGS_PER_BATCH
 ELLIPSIS = "...[truncated]"
 
 
@@ -42,12 +42,6 @@ def flatten(node: Mapping[str, Any], prefix: str = "") -> dict[str, str]:
         elif len(name) <= MAX_KEY:
             out[name] = truncate(_text(value) if not isinstance(value, Mapping) else "{}")
     return out
-
-
-def chunks(items: Mapping[str, str], size: int = BATCH) -> Iterator[dict[str, str]]:
-    keys = list(items)
-    for i in range(0, len(keys), size):
-        yield {k: items[k] for k in keys[i : i + size]}
 
 
 def numeric_metrics(summary: Mapping[str, Any], prefix: str) -> dict[str, float]:

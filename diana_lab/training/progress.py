@@ -4,7 +4,9 @@ Both show the speed and how the last 100 episodes ended: success beside the fail
 ground (tip-over, stuck, timeout; collision too once any happens). On a terminal it is SB3's progress bar
 (tqdm + rich; the rich bar does not draw tqdm's postfix, so the figures go into the description, refreshed about
 twice a second). When stdout is not a terminal (a cluster job, ``nohup``, a pipe) a bar would only appear at the
-end, so a line is printed every ``line_interval_s`` seconds instead, and once at the end.
+end, so a line is printed every ``line_interval_s`` seconds instead, and once at the end. Under a Hydra job those
+lines reach the job's log file with the rest of the console (``diana_lab.run_log``); while a bar is drawn, the same
+plain line goes to the log file alone, as often and once at the end, so the file never holds the bar.
 """
 
 from __future__ import annotations
@@ -15,6 +17,8 @@ from collections import Counter, deque
 from typing import TextIO
 
 from stable_baselines3.common.callbacks import BaseCallback, ProgressBarCallback
+
+from diana_lab.run_log import log_only
 
 __all__ = ["ProgressWithStats", "outcome_rates"]
 
@@ -46,6 +50,8 @@ class ProgressWithStats(BaseCallback):
         self.stream = stream if stream is not None else sys.stdout
         self.bar = self.stream.isatty() if bar is None else bar
         self.refresh_s = refresh_s if self.bar else line_interval_s
+        self.line_interval_s = line_interval_s
+        self._logged = 0.0  # when the bar's plain line last went to the log file
         self.outcomes: deque[str] = deque(maxlen=window)
         self._bar: ProgressBarCallback | None = None
         self._t0 = self._last = 0.0
@@ -53,7 +59,7 @@ class ProgressWithStats(BaseCallback):
         self._total = 0
 
     def _on_training_start(self) -> None:
-        self._t0 = self._last = time.perf_counter()
+        self._t0 = self._last = self._logged = time.perf_counter()
         self._n0 = self.model.num_timesteps
         self._total = self.locals["total_timesteps"]
         if self.bar:
@@ -85,7 +91,7 @@ class ProgressWithStats(BaseCallback):
         done, total = self.model.num_timesteps, max(self._total, 1)
         elapsed = now - self._t0
         rate = (done - self._n0) / max(elapsed, 1e-9)
-        left = (total - done) / rate if rate > 0 else float("nan")
+        left = max(total - done, 0) / rate if rate > 0 else float("nan")
         eta = f"{left / 60:.1f} min left" if left == left else "-"
         return (
             f"[train] {done:,}/{total:,} steps ({done / total:.0%}) | {elapsed / 60:.1f} min, {eta} | {self.stats(now)}"
@@ -93,7 +99,11 @@ class ProgressWithStats(BaseCallback):
 
     def show(self, now: float | None = None) -> None:
         if self._bar is not None:
+            now = now or time.perf_counter()
             self._bar.pbar.set_description_str(self.stats(now), refresh=False)
+            if now - self._logged >= self.line_interval_s:
+                self._logged = now
+                log_only(self.line(now))
         else:
             print(self.line(now), file=self.stream, flush=True)
 
@@ -101,6 +111,7 @@ class ProgressWithStats(BaseCallback):
         if self._bar is not None:
             self._bar.on_training_end()
             self._bar = None
+            log_only(self.line())
         else:
             self.show()
 
@@ -112,3 +123,4 @@ class ProgressWithStats(BaseCallback):
             if pbar is not None and not pbar.disable:
                 pbar.close()
             self._bar = None
+            log_only(self.line())  # where the log file's account of the interrupted training ends

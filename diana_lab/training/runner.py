@@ -292,14 +292,19 @@ class TrainingRun:
 
     def finish(self) -> dict[str, Any]:
         """Final checkpoint and model, the final evaluation (files + ``eval_*``; with ``eval.sensor_noise``, once
-        more per level in ``eval/sensor_noise/`` + ``eval_noise_<level>_*``), the best model if needed."""
+        more per level in ``eval/sensor_noise/`` + ``eval_noise_<level>_*``), the best model if needed, and the
+        final and best policies as MLflow models (:meth:`log_policy_models`)."""
         assert self.model is not None and self.checkpoints is not None and self.evaluator is not None
         self.checkpoints.save()
         for path in save_model(self.model, self.run_dir / "model"):
             self.tracker.log_artifact(path, "model")
-        if not self.train_cfg.final_eval:
-            return self.evaluator.last_summary or {}
+        summary = self.final_evaluation() if self.train_cfg.final_eval else self.evaluator.last_summary or {}
+        self.log_policy_models()
+        return summary
 
+    def final_evaluation(self) -> dict[str, Any]:
+        """The final evaluation's files and ``eval_*`` metrics (see :meth:`finish`); the best model if needed."""
+        assert self.model is not None and self.evaluator is not None
         out = self.run_dir / "eval"
         env = self.evaluator.env()  # the evaluation env (its dynamics already applied)
         policy = sb3_policy(self.model, self.model.get_vec_normalize_env(), self.eval_cfg)
@@ -318,6 +323,29 @@ class TrainingRun:
             for path in save_model(self.model, self.run_dir / "best"):
                 self.tracker.log_artifact(path, "best")
         return summary
+
+    def log_policy_models(self) -> None:
+        """The final policy as the MLflow model ``policy_model`` (registered as a new version of
+        ``tracking.register_model`` when set) and the best one kept, if any, as ``best_policy_model``
+        (:mod:`diana_lab.tracking.pyfunc_model`)."""
+        if self.tracker.run_id is None:
+            return
+        from diana_lab.tracking.pyfunc_model import BEST_MODEL, FINAL_MODEL, log_policy_model
+
+        assert self.model is not None
+        overrides = self.run_dir / ".hydra" / "overrides.yaml"
+        register = self.tracking_cfg.register_model
+        steps = self.model.num_timesteps  # the final evaluation's step: its metrics are the model's
+        info = log_policy_model(
+            self.tracker, self.run_dir / "model", self.cfg, FINAL_MODEL, self.model, overrides, register, steps
+        )
+        if register is not None and info is not None:
+            version = info.registered_model_version
+            self.tracker.set_tags({"registered_model": f"{register}/{version}"})
+            print(f"registered the final policy as models:/{register}/{version}")
+        best = self.run_dir / "best"
+        if (best / "model.zip").is_file():
+            log_policy_model(self.tracker, best, self.cfg, BEST_MODEL, self.model, overrides)
 
     def result(self, status: str, summary: dict[str, Any]) -> TrainResult:
         steps = self.model.num_timesteps if self.model is not None else 0

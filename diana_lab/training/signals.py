@@ -1,6 +1,7 @@
 """Ctrl-C and SIGTERM as exceptions raised at safe points, so a run always ends cleanly.
 
-SIGTERM (``kill``, a job scheduler, a container stop) becomes :class:`Terminated`, a ``KeyboardInterrupt``,
+SIGTERM (``kill``, a job scheduler, a container stop; under submitit also its time-limit signal) becomes
+:class:`Terminated`, a ``KeyboardInterrupt``,
 so it is handled exactly like Ctrl-C: checkpoint saved, MLflow run marked KILLED, instead of the process
 dying mid-write with the run left RUNNING. Both are deferred while a tracking-store write is in progress
 (:mod:`diana_lab.tracking.atomic`).
@@ -19,6 +20,7 @@ so the run still ends KILLED with its checkpoint, not FAILED.
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
 from collections.abc import Iterator
@@ -44,10 +46,20 @@ class Terminated(KeyboardInterrupt):
     """Raised in the main thread when the process receives SIGTERM."""
 
 
+def _scheduler_signals() -> tuple[signal.Signals, ...]:
+    """Under submitit (``hydra/launcher=submitit_slurm``), the signal Slurm sends before the job's time limit
+    (``SUBMITIT_PREEMPT_SIGNAL``, USR2 by default): submitit would raise an error mid-step, ending the run FAILED
+    with no checkpoint; taken as SIGTERM it ends KILLED with one (``train.resume`` continues it)."""
+    if not os.environ.get("SUBMITIT_EXECUTOR"):
+        return ()
+    name = "SIG" + os.environ.get("SUBMITIT_PREEMPT_SIGNAL", "USR2")
+    return (signal.Signals[name],) if name in signal.Signals.__members__ else ()
+
+
 def _handler(signum: int, frame: FrameType | None) -> None:
     global _pending
     exc: BaseException = (
-        Terminated(f"received {signal.Signals(signum).name}") if signum == signal.SIGTERM else KeyboardInterrupt()
+        KeyboardInterrupt() if signum == signal.SIGINT else Terminated(f"received {signal.Signals(signum).name}")
     )
     _pending = exc
     if atomic.active():
@@ -64,7 +76,7 @@ def interrupts_as_exceptions() -> Iterator[None]:
         yield  # signal handlers can only be installed from the main thread
         return
     global _pending
-    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, _handler) for s in (signal.SIGINT, signal.SIGTERM, *_scheduler_signals())}
     try:
         yield
     except BaseException:

@@ -181,3 +181,13 @@ def test_repeats_default_by_mode_and_as_given():
     assert BenchContext(compose(["quick=true"], config_name="bench")).repeats == 3
     assert BenchContext(compose([], config_name="bench")).repeats == 7
     assert BenchContext(compose(["repeats=2"], config_name="bench")).repeats == 2
+
+
+@pytest.mark.parametrize("key", ["env_steps_per_s_kinematic", "rss_mb_per_env"])
+def test_the_single_env_figures_run_under_the_main_commands_defaults(tmp_path, key):
+    # they pin the square action space their random actions fit, whatever the composed config's action space
+    cfg = compose(["quick=true", "repeats=1", f"output={tmp_path / 'b.json'}", f"only=[{key}]"], config_name="bench")
+    assert cfg.action_space.shape == "discrete"  # the main command's
+    result = run(cfg, command="pytest")
+    assert result["errors"] == {}
+    assert result["figures"][key]["value"] > 0

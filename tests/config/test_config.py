@@ -67,13 +67,22 @@ def test_a_required_key_left_out_is_named_with_what_it_is():
     mandatory value: size_x"."""
     with pytest.raises(ConfigError) as err:
         validate(compose(["world=dem", "world.path=site.npy", "world.size_y=60"]), ["world"])
-    assert str(err.value) == "world.size_x: missing, and required for world=dem: the DEM's extent along x in metres"
+    assert str(err.value) == (
+        "world.size_x: missing, and required for world=dem: the DEM's extent along x in metres "
+        "(a .npy file has no georeferencing)"
+    )
     with pytest.raises(ConfigError) as err:
-        to_object("world", "dem")  # every one missing: each named, in the schema's order
+        to_object("world", "dem")  # the sizes may come from a GeoTIFF's georeferencing: only the path is required
     message = str(err.value)
-    assert message.startswith("world.path: missing, and required for world=dem: the elevation file")
-    assert "; world.size_x: missing" in message and "; world.size_y: missing" in message
+    assert message == (
+        "world.path: missing, and required for world=dem: the elevation file (GeoTIFF/TIFF, 8/16-bit PNG or .npy)"
+    )
     assert "Structured config" not in message
+    with pytest.raises(ConfigError) as err:
+        to_object("robot", {"name": "mine"})  # several missing: each named, in the schema's order
+    message = str(err.value)
+    assert message.startswith("robot.urdf: missing, and required for robot=mine")
+    assert "; robot.wheel_radius: missing" in message and "; robot.mass: missing" in message
 
 
 def test_discrete_action_space_composes_with_the_on_policy_algos_only():

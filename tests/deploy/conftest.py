@@ -38,14 +38,18 @@ class ExportedRun:
     onnx: Path
 
 
-def export_run(run_dir: Path, cfg, world, normalize: bool = True, *evaluation: str) -> ExportedRun:
+def export_run(
+    run_dir: Path, cfg, world, normalize: bool = True, *evaluation: str, opset: int | None = None
+) -> ExportedRun:
     """Save a tiny model of ``cfg`` as a run, export it through the CLI's task function, load it for torch;
-    ``evaluation``: ``eval.*`` overrides of both (e.g. the slope shield's)."""
+    ``evaluation``: ``eval.*`` overrides of both (e.g. the slope shield's); ``opset``: the export's (which picks the
+    exporter, :func:`diana_lab.deploy.export.exporter_for`), else its default."""
     from diana_lab.export import main
 
     env = make_run(run_dir, cfg, world, normalize)
     onnx = run_dir / "export" / "policy.onnx"
-    main.task(compose([f"policy={run_dir}", f"output={onnx}", *evaluation], config_name="export"))
+    chosen = [f"opset={opset}"] if opset is not None else []
+    main.task(compose([f"policy={run_dir}", f"output={onnx}", *chosen, *evaluation], config_name="export"))
     eval_cfg = to_object("eval", compose(list(evaluation)).eval) if evaluation else EVAL
     return ExportedRun(env, load_policy(str(run_dir), cfg, eval_cfg), run_dir, onnx)
 

@@ -13,7 +13,13 @@ from torch import nn
 from diana_lab.cli import UserError
 from diana_lab.config import ConfigError, compose, to_object
 from diana_lab.deploy import PolicySpec, sidecar_path
-from diana_lab.deploy.export import MatmulAdaptiveAvgPool2d, export_policy, square_to_disc
+from diana_lab.deploy.export import (
+    DEFAULT_OPSET,
+    DYNAMO_MIN_OPSET,
+    MatmulAdaptiveAvgPool2d,
+    export_policy,
+    square_to_disc,
+)
 from diana_lab.envs.action_spaces import WaypointMapping
 from diana_lab.envs.action_spaces import square_to_disc as square_to_disc_np
 from diana_lab.export import main
@@ -60,6 +66,7 @@ def test_sidecar_describes_what_the_runtime_needs(depth_run):
     assert node["normalization"] == {"baked_into_graph": True, "keys": ["goal"], "clip_obs": 2.0}
     assert node["source"]["config"] == "training" and node["source"]["algorithm"] == "PPO"
     assert node["diana_lab_version"] and node["source"]["export_check_max_error_m"] < 1e-4
+    assert node["opset"] == DEFAULT_OPSET and node["source"]["exporter"] == "torchscript"  # dynamo needs opset 18
     spec = PolicySpec.load(sidecar_path(depth_run.onnx))
     assert PolicySpec.from_dict(json.loads(spec.to_json())) == spec  # the JSON round trip is lossless
 
@@ -75,6 +82,38 @@ def test_the_graph_takes_any_batch_and_maps_actions_like_the_env(depth_run):
     np.testing.assert_allclose(single[0], offset[2], atol=1e-6)
     mapping = WaypointMapping(to_object("action_space", compose(CAMERA_SQUARE).action_space))
     np.testing.assert_allclose(offset, [mapping.offset(a, 0.0) for a in action], atol=1e-5)
+
+
+def test_from_opset_18_the_dynamo_exporter_writes_one_file_that_drives_like_torch(depth_run, tmp_path):
+    """``opset=18``: torch's current exporter (``dynamo=True``), weights inside the one graph file, batch dynamic,
+    the same waypoints as the TorchScript graph and as the SB3 model (``model.predict`` through VecNormalize)."""
+    import onnx
+
+    out = tmp_path / "dynamo" / "policy.onnx"
+    main.task(
+        compose([f"policy={depth_run.run_dir}", f"output={out}", f"opset={DYNAMO_MIN_OPSET}"], config_name="export")
+    )
+    assert sorted(p.name for p in out.parent.iterdir()) == ["policy.json", "policy.onnx"]  # no external data
+    spec = PolicySpec.load(sidecar_path(out))
+    assert spec.opset == DYNAMO_MIN_OPSET and spec.source["exporter"] == "dynamo"
+    assert spec.source["export_check_max_error_m"] < 1e-4
+    graph = onnx.load(str(out))
+    assert {o.domain: o.version for o in graph.opset_import}.get("") == DYNAMO_MIN_OPSET
+    assert spec.inputs == {"goal": [-1, 7], "depth_image": [-1, 1, 48, 64]}
+    rng = np.random.default_rng(1)
+    goal = rng.uniform(-1, 1, (64, 7)).astype(np.float32)
+    image = rng.uniform(0, 1, (64, 1, 48, 64)).astype(np.float32)
+    feeds = {"goal": goal, "depth_image": image}
+    session = ort.InferenceSession(str(out), providers=["CPUExecutionProvider"])
+    offset, action = session.run(["offset", "action"], feeds)
+    assert offset.shape == action.shape == (64, 2)
+    single = session.run(["offset"], {"goal": goal[5:6], "depth_image": image[5:6]})[0]
+    np.testing.assert_allclose(single[0], offset[5], atol=1e-6)
+    torchscript = ort.InferenceSession(str(depth_run.onnx), providers=["CPUExecutionProvider"])
+    np.testing.assert_allclose(offset, torchscript.run(["offset"], feeds)[0], atol=1e-5)
+    mapping, policy = depth_run.env.mapping, depth_run.loaded.policy
+    want = [mapping.offset(policy.act({"goal": g, "depth_image": i}, depth_run.env), 0.0) for g, i in zip(goal, image)]
+    np.testing.assert_allclose(offset, want, atol=1e-4)  # the parity tests' tolerance (m)
 
 
 @pytest.fixture(scope="module")
@@ -172,7 +211,8 @@ def test_a_sidecar_asking_for_the_shield_needs_a_discrete_graph_with_logits_and_
         PolicySpec.from_dict(without_logits)
     with pytest.raises(ValueError, match=r"shield: .*half_track"):
         PolicySpec.from_dict({**node, "shield": {k: v for k, v in settings.items() if k != "half_track"}})
-    with pytest.raises(ValueError, match=r"shield: .*route_tolerance >= 0 m, got -1"):  # a bad value, not just a key
+    # a bad value, not just a key
+    with pytest.raises(ValueError, match=r"shield\.route_tolerance: expected a number >= 0, got -1"):
         PolicySpec.from_dict({**node, "shield": {**settings, "route_tolerance": -1.0}})
     continuous = json.loads(sidecar_path(depth_run.onnx).read_text())
     with pytest.raises(ValueError, match=r"shield: .*action_space.shape=square"):

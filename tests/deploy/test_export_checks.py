@@ -14,7 +14,7 @@ from omegaconf import OmegaConf
 from diana_lab.cli import UserError
 from diana_lab.config import compose, to_object
 from diana_lab.deploy.command import PRETRAINED_PRESET, chosen_keys, export_shield, run
-from diana_lab.deploy.export import DEFAULT_OPSET, check_opset, opset_range
+from diana_lab.deploy.export import DEFAULT_OPSET, DYNAMO_MIN_OPSET, check_opset, exporter_for, opset_range
 from diana_lab.deploy.spec import PolicySpec, sidecar_path
 from diana_lab.evaluation.loading import PRETRAINED_DIR
 
@@ -116,6 +116,14 @@ def test_opsets_outside_the_exporters_range_are_refused_before_anything_is_writt
 
     low, high = opset_range()
     assert low == _constants.ONNX_MIN_OPSET and low <= DEFAULT_OPSET <= high <= onnx.defs.onnx_opset_version()
+    # the TorchScript exporter up to 17 (the default: TensorRT 8.6), the dynamo one from 18 to torch's most
+    assert low < DYNAMO_MIN_OPSET <= high and DEFAULT_OPSET < DYNAMO_MIN_OPSET
+    assert [exporter_for(o) for o in (low, DEFAULT_OPSET, DYNAMO_MIN_OPSET, high)] == [
+        "torchscript",
+        "torchscript",
+        "dynamo",
+        "dynamo",
+    ]
     check_opset(low), check_opset(high)
     for opset in (5, low - 1, high + 1, 99):
         with pytest.raises(UserError, match=rf"^opset={opset}: expected an ONNX opset from {low} to {high}"):

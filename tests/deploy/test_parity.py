@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from diana_lab.deploy import Navigator
+from diana_lab.deploy.export import DEFAULT_OPSET, DYNAMO_MIN_OPSET
 
 from .conftest import export_run
 from .helpers import record, run_config
@@ -123,19 +124,28 @@ SLOW_CASES = {
 }
 
 
+# both exporters the export uses: TorchScript at the default opset, dynamo from 18 (export.exporter_for)
+EXPORTERS = {"torchscript": DEFAULT_OPSET, "dynamo": DYNAMO_MIN_OPSET}
+
+
+@pytest.mark.parametrize("exporter", EXPORTERS)
 @pytest.mark.parametrize(
     "name",
     [*CASES, *(pytest.param(n, marks=pytest.mark.slow) for n in SLOW_CASES)],
 )
-def test_other_sensors_and_action_spaces_match_torch(name, tmp_path, small_world):
+def test_other_sensors_and_action_spaces_match_torch(name, exporter, tmp_path, small_world):
     overrides = {**CASES, **SLOW_CASES}[name]
-    run = export_run(tmp_path / "run", run_config(*overrides), small_world, normalize=name != "camera_points_td3_world")
+    normalize = name != "camera_points_td3_world"
+    opset = EXPORTERS[exporter]
+    run = export_run(tmp_path / "run", run_config(*overrides), small_world, normalize, opset=opset)
     try:
         rec = record(run.env, run.loaded.policy, 150, seed=1)
-        err = replay(Navigator.from_files(run.onnx), rec)
+        nav = Navigator.from_files(run.onnx)
+        err = replay(nav, rec)
     finally:
         run.env.close()
-    print(f"{name} parity over 150 observations: {err}")
+    print(f"{name} parity over 150 observations, {exporter} exporter: {err}")
+    assert nav.spec.opset == opset and nav.spec.source["exporter"] == exporter
     assert err["goal"] == 0.0
     assert err["encoding"] <= 1e-6
     assert err["waypoint"] <= TOLERANCE_M

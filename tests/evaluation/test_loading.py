@@ -101,7 +101,13 @@ def test_the_readmes_list_of_policies_is_the_one_the_program_accepts_and_names()
     lists = [m.group(1) for m in re.finditer(r"python -m diana_lab\.evaluate policy=<([^>]*)>", readme)]
     full = [names for names in lists if "pretrained" in names]  # the Commands table's, beside the tour's examples
     assert len(full) == 1
-    assert [n.strip() for n in full[0].split(",")] == ["run id", "model path", "pretrained", *POLICY_NAMES]
+    assert [n.strip() for n in full[0].split(",")] == [
+        "run id",
+        "model path",
+        "models:/name/version",
+        "pretrained",
+        *POLICY_NAMES,
+    ]
     cfg = compose([])
     with pytest.raises(UserError, match="policy=astr: no such model file") as err:
         load_policy("astr", cfg, to_object("eval", cfg.eval))

@@ -33,6 +33,7 @@ def installed(tmp_path_factory) -> Path:
     (wheel,) = dist.glob("diana_lab-*.whl")
     names = zipfile.ZipFile(wheel).namelist()
     for needed in ("diana_lab/conf/config.yaml", "diana_lab/conf/sensor/lidar_map.yaml",
+                   "diana_lab/conf/policy/straight.yaml", "diana_lab/conf/shield/reference.yaml",
                    "diana_lab/sweeps/specs/reward_shaping.yaml", "diana_lab/assets/marsyard2022/LICENSE"):  # fmt: skip
         assert any(n == needed or n.startswith(needed) for n in names), needed
     env_dir = tmp / "venv"

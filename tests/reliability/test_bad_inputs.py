@@ -94,6 +94,12 @@ ROWS = [
     Bad("unknown-noise-preset", TRAIN, ("sensor.noise=extreme",), ("sensor.noise", "realistic")),
     Bad("unknown-device", TRAIN, ("train.device=gpu",), ("train.device", "cuda")),
     Bad("zero-envs", TRAIN, ("train.n_envs=0",), ("train.n_envs", "positive integer")),
+    Bad(
+        "register-model-bad-name",
+        TRAIN,
+        ("tracking.register_model=my/policy",),
+        ("tracking.register_model", "my/policy"),
+    ),
     Bad("physics-time-step", TRAIN, ("dynamics=physics", "dynamics.time_step=1"), ("dynamics.time_step",)),
     Bad("dem-without-path", TRAIN, tuple(DEM), ("world.path: missing, and required for world=dem", "elevation file")),
     Bad(

@@ -181,7 +181,7 @@ def test_bad_detour_settings_name_their_key(key, value):
 
 def test_bad_detour_settings_are_refused_by_the_shield_and_the_planner():
     node = asdict(ShieldSettings.from_config(ShieldConfig(enabled=True, **DETOUR), ROBOT))
-    with pytest.raises(ValueError, match="detour_after >= 0"):
+    with pytest.raises(ValueError, match=r"shield\.detour_progress: expected"):
         SlopeShield(ShieldSettings.from_dict({**node, "detour_progress": 0.0}))
     with pytest.raises(ValueError, match="after >= 1"):
         Detour(0, 0.5, 10.0, 25.0, 0.5)

@@ -167,5 +167,5 @@ def test_bad_route_settings_are_refused_by_the_shield_too():
     node = asdict(ShieldSettings.from_config(ShieldConfig(enabled=True, **ROUTE), ROBOT))
     with pytest.raises(ValueError, match="route_tolerance"):
         SlopeShield(ShieldSettings.from_dict({**node, "route_tolerance": -1.0}))
-    with pytest.raises(ValueError, match="slope cost"):
+    with pytest.raises(ValueError, match=r"shield\.slope_cost_to_deg: expected more than"):
         SlopeShield(ShieldSettings.from_dict({**node, "slope_cost_weight": 1.0, "slope_cost_to_deg": 10.0}))

@@ -52,7 +52,7 @@ def test_a_bad_rule_key_is_named_alike_in_the_config_and_in_a_sidecar():
 def test_an_unknown_rule_is_refused_naming_the_key_and_the_rules_there_are():
     with pytest.raises(ConfigError, match=r"eval\.shield\.rules: unknown rules \['detuor'\]; expected names of"):
         ShieldSettings.from_config(ShieldConfig(rules=["approach", "detuor"]), ROBOT)
-    with pytest.raises(ConfigError, match="eval.shield.rules: expected a list"):
+    with pytest.raises(ConfigError, match=r"eval\.shield\.rules: expected a list"):
         ShieldConfig(rules="approach")
 
 

@@ -214,3 +214,18 @@ def test_a_seeded_sampler_goes_on_after_a_rerun_and_repeats_it_exactly(tmp_path)
     first = study_of(tmp_path / "a")
     assert len(first) == 2 and first[1] != first[0]
     assert study_of(tmp_path / "b") == first  # same seed, same reruns: same points
+
+
+def test_a_worker_on_another_tracking_store_is_refused_naming_both(tmp_path, capsys):
+    path = write_sweep(tmp_path, n_trials=1)
+    assert run_in_process(sweep_args(tmp_path, path)) == 0
+    _, (parent,), _ = mlflow_runs(tmp_path)
+    capsys.readouterr()
+    other = f"tracking.uri=sqlite:///{tmp_path}/elsewhere.db"
+    assert run_in_process(sweep_args(tmp_path, path, "sweep.n_trials=2", other, out="again")) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path}/elsewhere.db" in err and f"{tmp_path}/mlflow.db" in err and parent.info.run_id in err
+    assert "Traceback" not in err
+    study = load_study(tmp_path)
+    assert states(study) == ["COMPLETE"]  # no trial ran on the other store
+    assert study.user_attrs["mlflow_parent_run_id"] == parent.info.run_id  # the study's record kept

@@ -72,3 +72,34 @@ def test_a_sigterm_wrapped_by_native_code_ends_the_run_killed_with_its_checkpoin
     _, found = runs(tmp_path)
     assert [r.info.status for r in found] == ["KILLED"]
     assert any((tmp_path / "run" / "checkpoints").glob("rl_model_*_steps.zip"))
+
+
+@pytest.mark.parametrize(("env", "caught"), [({}, False), ({"SUBMITIT_EXECUTOR": "slurm"}, True)])
+def test_under_submitit_the_time_limit_signal_ends_the_block_as_a_sigterm(monkeypatch, env, caught):
+    import os
+    import signal
+
+    from diana_lab.training.signals import interrupts_as_exceptions
+
+    monkeypatch.delenv("SUBMITIT_EXECUTOR", raising=False)
+    monkeypatch.delenv("SUBMITIT_PREEMPT_SIGNAL", raising=False)
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    seen = []
+
+    def own(signum, frame):
+        seen.append(signum)
+
+    previous = signal.signal(signal.SIGUSR2, own)
+    try:
+        if caught:
+            with pytest.raises(Terminated, match="SIGUSR2"), interrupts_as_exceptions():
+                os.kill(os.getpid(), signal.SIGUSR2)
+            assert seen == []
+        else:
+            with interrupts_as_exceptions():
+                os.kill(os.getpid(), signal.SIGUSR2)
+            assert seen == [signal.SIGUSR2]  # outside submitit the signal keeps its own handler
+        assert signal.getsignal(signal.SIGUSR2) is own  # restored after the block
+    finally:
+        signal.signal(signal.SIGUSR2, previous)

@@ -97,6 +97,19 @@ def test_tracker_logs_many_params_and_ends_with_status(tmp_path, status):
     assert (tmp_path / "mlruns").is_dir()  # artefacts sit beside the database
 
 
+def test_tracker_hands_long_lists_of_tags_and_metrics_to_mlflow_in_one_call(tmp_path):
+    # MLflow's own log_batch splits them into the store's batches (100 tags, 1000 metrics)
+    uri = f"sqlite:///{tmp_path}/m.db"
+    t = MlflowTracker(uri, "exp")
+    t.set_tags({f"t{i}": i for i in range(150)})
+    t.log_metrics({f"m{i}": float(i) for i in range(1200)}, step=3)
+    t.log_metrics({}, step=4)  # nothing to log is fine
+    t.end("FINISHED")
+    run = MlflowClient(uri).get_run(t.run_id)
+    assert run.data.tags["t149"] == "149" and len([k for k in run.data.tags if k.startswith("t")]) == 150
+    assert len(run.data.metrics) == 1200 and run.data.metrics["m1199"] == 1199.0
+
+
 def test_experiments_the_platform_creates_are_tagged_for_model_development(tmp_path):
     from diana_lab.sweeps.mlflow_runs import SweepClient
 

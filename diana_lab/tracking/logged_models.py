@@ -1,0 +1,32 @@
+"""Log an MLflow model (any flavour) to a given run, whatever run is active in the process.
+
+MLflow 3's ``<flavour>.log_model`` logs to the active run, and creates the model (a ``LoggedModel``) in the
+active run's experiment, else in the active or default experiment. The runner keeps explicit run ids
+(:class:`~diana_lab.tracking.mlflow_run.MlflowTracker`) and the export logs to a finished training run with no run
+active, so :func:`log_model_to_run` creates the model in the run's own experiment first and hands its id to
+``Model.log``: ``runs:/<run id>/<name>`` then finds it (MLflow looks for a model of that name among the run's
+experiment's models whose source run is the run).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["log_model_to_run"]
+
+
+def log_model_to_run(uri: str, run_id: str, name: str, flavor: Any, **kwargs: Any) -> Any:
+    """``Model.log`` of ``flavor`` (``mlflow.pyfunc``, ``mlflow.onnx``...) as the model ``name`` of run ``run_id``
+    in the store at ``uri``; ``kwargs`` go to the flavour's ``save_model`` (and ``registered_model_name``,
+    ``metadata``... to ``Model.log``). Returns MLflow's ``ModelInfo``."""
+    import mlflow
+    from mlflow.models import Model
+    from mlflow.tracking import MlflowClient
+
+    from diana_lab.tracking.atomic import uninterrupted
+
+    with uninterrupted():  # Ctrl-C waits: a half-written model would be left PENDING, SQLite locked
+        mlflow.set_tracking_uri(uri)
+        experiment_id = MlflowClient(uri).get_run(run_id).info.experiment_id
+        model = mlflow.initialize_logged_model(name=name, source_run_id=run_id, experiment_id=experiment_id)
+        return Model.log(None, flavor, name=name, run_id=run_id, model_id=model.model_id, **kwargs)
