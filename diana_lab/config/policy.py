@@ -16,7 +16,7 @@ from pathlib import Path
 from omegaconf import MISSING
 
 from diana_lab.config.store import register
-from diana_lab.core.validation import ConfigError, in_range, positive
+from diana_lab.core.validation import in_range, non_negative, positive
 
 __all__ = [
     "AStarMemoryPolicyConfig",
@@ -66,9 +66,7 @@ class AStarPolicyConfig:
         positive("policy.spacing", self.spacing)
         positive("policy.replan_distance", self.replan_distance)
         for key in ("margin", "obstacle_margin", "snap"):
-            value = getattr(self, key)
-            if not value >= 0:
-                raise ConfigError(f"policy.{key}: expected a number >= 0, got {value!r}")
+            non_negative(f"policy.{key}", getattr(self, key))
         if self.knowledge_radius is not None:
             positive("policy.knowledge_radius", self.knowledge_radius)
         if self.knowledge_fov_deg is not None:

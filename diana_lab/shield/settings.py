@@ -9,7 +9,7 @@ read, naming the bad key, not when the rover first decides. The keys themselves 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import MISSING, dataclass, fields
 from typing import TYPE_CHECKING, Any
 
 from diana_lab.core.shield_rules import ShieldRules
@@ -62,11 +62,14 @@ class ShieldSettings(ShieldRules):
 
     @classmethod
     def from_dict(cls, node: dict[str, Any]) -> ShieldSettings:
-        """A sidecar's ``shield`` node; a key it does not know is refused, naming it."""
+        """A sidecar's ``shield`` node; a key it does not know, or a geometry key it lacks, is refused, naming it."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(node) - known)
         if unknown:
             raise ConfigError(f"shield: unknown keys {unknown}; expected keys of {sorted(known)}")
+        required = {f.name for f in fields(cls) if f.default is MISSING and f.default_factory is MISSING}
+        if missing := sorted(required - set(node)):
+            raise ConfigError(f"shield: missing keys {missing} (the robot's geometry)")
         return cls(**node)
 
     def __post_init__(self) -> None:
