@@ -44,7 +44,18 @@ class SweepConfig:
     timesteps: int | None = None  # training steps per trial (and per seed)
     eval_episodes: int | None = None  # episodes of the fixed evaluation suite (the objective's)
     eval_every: int | None = None  # steps between the evaluations the pruner sees
+    prune_after: int | None = None  # median pruner: training steps before which no trial is pruned
     top: int = 10  # trials in the printed table
+    # worker processes of this study on this machine, each pinned to its share of the cores (a run uses two
+    # cores poorly, so 2 workers on 2 cores run about twice the trials of one); 1: this process only
+    workers: int = 1
+    # a new study's first trial: the composed config's own values of the searched keys (reward=default's
+    # weights, say), so the table says whether anything beats them
+    baseline: bool = True
+    # a study in this storage whose best sweep.top_k trials this study re-runs on sweep.seeds (fresh ones),
+    # enqueued instead of sampled and never pruned, before a best is named (diana_lab/sweeps/confirm.py)
+    top_of: str | None = None
+    top_k: int = 5
 
     def __post_init__(self) -> None:
         if not str(self.name).strip():
@@ -63,6 +74,10 @@ class SweepConfig:
             isinstance(self.eval_every, bool) or not isinstance(self.eval_every, int) or self.eval_every < 0
         ):
             raise ConfigError(f"sweep.eval_every: expected an integer >= 0 (0: no pruning), got {self.eval_every!r}")
+        if self.prune_after is not None and (
+            isinstance(self.prune_after, bool) or not isinstance(self.prune_after, int) or self.prune_after < 0
+        ):
+            raise ConfigError(f"sweep.prune_after: expected an integer >= 0 (training steps), got {self.prune_after!r}")
         if self.timeout_s is not None:
             positive("sweep.timeout_s", self.timeout_s)
         if isinstance(self.heartbeat_s, bool) or not isinstance(self.heartbeat_s, int) or self.heartbeat_s < 0:
@@ -70,6 +85,17 @@ class SweepConfig:
         if isinstance(self.pruner_startup_trials, bool) or self.pruner_startup_trials < 0:
             raise ConfigError(
                 f"sweep.pruner_startup_trials: expected an integer >= 0, got {self.pruner_startup_trials!r}"
+            )
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ConfigError(
+                f"sweep.workers: expected a positive integer (processes on this machine), got {self.workers!r}"
+            )
+        if isinstance(self.top_k, bool) or not isinstance(self.top_k, int) or self.top_k < 1:
+            raise ConfigError(f"sweep.top_k: expected a positive integer (trials to re-run), got {self.top_k!r}")
+        if self.top_of is not None and not self.seeds:
+            raise ConfigError(
+                f"sweep.top_of={self.top_of}: a re-run of the top trials needs sweep.seeds, training seeds other "
+                "than the one they were picked on (e.g. 'sweep.seeds=[1,2,3]')"
             )
         if isinstance(self.top, bool) or self.top <= 0:
             raise ConfigError(f"sweep.top: expected a positive integer, got {self.top!r}")

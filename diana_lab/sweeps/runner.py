@@ -34,7 +34,9 @@ from diana_lab.config.sweep import SweepConfig
 from diana_lab.core.validation import ConfigError, check_seed
 from diana_lab.errors import UserError
 from diana_lab.sweeps import report
+from diana_lab.sweeps.baseline import enqueue_baseline
 from diana_lab.sweeps.compose import compose_run, override_keys
+from diana_lab.sweeps.confirm import enqueue_top
 from diana_lab.sweeps.mlflow_runs import PARENT_ATTR, TRACKING_ATTR, ParentRun, SweepClient
 from diana_lab.sweeps.objective import Objective, TrialPlan
 from diana_lab.sweeps.space import Param
@@ -49,6 +51,7 @@ from diana_lab.sweeps.study import (
     wait_for,
     worker_id,
 )
+from diana_lab.sweeps.workers import LocalWorkers
 from diana_lab.tracking.git import git_commit
 from diana_lab.training.runner import RUN_GROUPS
 from diana_lab.training.signals import interrupts_as_exceptions
@@ -244,6 +247,24 @@ def _report(
     return result
 
 
+def _source_study(storage: optuna.storages.BaseStorage, name: str) -> optuna.Study:
+    try:
+        return optuna.load_study(study_name=name, storage=storage)
+    except KeyError:
+        names = [s.study_name for s in optuna.get_all_study_summaries(storage)]
+        raise ConfigError(f"sweep.top_of={name}: no such study in sweep.storage (it holds {names or 'none'})") from None
+
+
+def _hydra_overrides() -> list[str]:
+    """The command line's ``hydra.*`` overrides (logging, launcher), for the workers this one starts."""
+    try:
+        from hydra.core.hydra_config import HydraConfig
+
+        return [str(o) for o in OmegaConf.to_container(HydraConfig.get().overrides.hydra, resolve=False)]
+    except ValueError:  # called outside a Hydra app (tests, notebooks)
+        return []
+
+
 def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -> SweepResult:
     """Run this worker's share of the study described by ``cfg.sweep`` (see the module docstring)."""
     settings: SweepConfig = C.to_object("sweep", cfg.sweep)
@@ -276,10 +297,23 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
     storage_url = resolve_storage(settings.storage)
     storage = make_storage(storage_url, settings.heartbeat_s, on_stale)
     name = settings.study_name or spec.name
+    if name == settings.top_of:
+        raise ConfigError(f"sweep.top_of={name}: the re-runs need a study of their own: give another sweep.study_name")
+    source = _source_study(storage, settings.top_of) if settings.top_of else None
+    pruner = "none" if source is not None else settings.pruner  # a re-run is a full measurement
     sampler = make_sampler(settings.sampler, settings.sampler_seed)
     study, created = open_study(
-        storage, name, spec.direction, sampler, make_pruner(settings.pruner, settings.pruner_startup_trials)
+        storage, name, spec.direction, sampler, make_pruner(pruner, settings.pruner_startup_trials, spec.prune_after)
     )
+    if source is not None:
+        top = enqueue_top(study, source, settings.top_k, {p.key for p in params})
+        spec = dataclasses.replace(spec, n_trials=len(top))
+        print(
+            f"re-running {len(top)} trial(s) of study '{source.study_name}' ({[t.number for t in top]}: the top "
+            f"{settings.top_k}, and its baseline when it is not among them) on "
+            f"seeds {list(settings.seeds)}",
+            file=sys.stderr,
+        )
     dead = fail_dead_trials(study)
     with warnings.catch_warnings():  # RDB storages: dead workers of other machines too (else a last slot they
         warnings.simplefilter("ignore", optuna.exceptions.ExperimentalWarning)  # hold would stop every worker)
@@ -300,7 +334,8 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
         "optuna_study": name,
         "optuna_storage": display_url(storage_url),
         "sampler": settings.sampler,
-        "pruner": settings.pruner,
+        "pruner": pruner,
+        **({"top_of": settings.top_of} if settings.top_of else {}),
         "objective": f"{spec.direction} {spec.metric}",
         "n_trials": spec.n_trials,
         "base_overrides": " ".join(spec.base),
@@ -310,6 +345,7 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
     }
     result = SweepResult(name, storage_url, "FAILED")
     plan: TrialPlan | None = None
+    helpers: LocalWorkers | None = None
     status = "FAILED"
     with interrupts_as_exceptions():
         try:
@@ -329,6 +365,8 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
                 tags={"sweep": spec.name},
             )
             _note_setup_change(study, plan)
+            if created and source is None and settings.baseline:
+                enqueue_baseline(study, compose_run(plan.overrides({}))[0], params)
             budget = TrialBudget(spec.n_trials)
             left = budget.remaining(study)
             print(
@@ -336,6 +374,15 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
                 f"done or running; {spec.direction} {spec.metric}",
                 file=sys.stderr,
             )
+            if left > 0 and settings.workers > 1:
+                helpers = LocalWorkers.start(
+                    min(settings.workers, left),
+                    overrides,
+                    storage_url,
+                    out_dir,
+                    settings.sampler_seed,
+                    _hydra_overrides(),
+                )
             if left > 0:
                 study.optimize(
                     Objective(plan, worker_id()),
@@ -345,11 +392,16 @@ def run_sweep(cfg: DictConfig, out_dir: Path, overrides: tuple[str, ...] = ()) -
                     callbacks=[budget],
                     gc_after_trial=True,
                 )
+            if helpers is not None:
+                print("waiting for the other workers' trials", file=sys.stderr)
+                helpers.wait()
             status = "FINISHED"
         except KeyboardInterrupt:
             status = "KILLED"
             raise
         finally:
+            if helpers is not None and status != "FINISHED":
+                helpers.stop()
             if plan is not None:
                 try:
                     result = _report(study, plan, parent, out_dir, status == "FINISHED", settings.top)

@@ -34,7 +34,7 @@ SECTIONS = {
     "description": None,
     "base": None,
     "objective": ("metric", "direction"),
-    "budget": ("n_trials", "timesteps", "eval_episodes", "eval_every"),
+    "budget": ("n_trials", "timesteps", "eval_episodes", "eval_every", "prune_after"),
     "params": None,
 }
 DEFAULTS = {"metric": "spl", "direction": "maximize", "n_trials": 20}
@@ -55,6 +55,7 @@ class SweepSpec:
     timesteps: int | None = None  # None: the composed config's train.total_timesteps
     eval_episodes: int | None = None  # None: the composed config's eval.episodes
     eval_every: int | None = None  # None: the composed config's eval.every; 0: no periodic evaluation
+    prune_after: int = 0  # training steps before which the median pruner prunes no trial (early scores are noise)
     lines: dict[str, int] = field(default_factory=dict)  # param key -> line in the file (for later errors)
 
     def where(self, key: str | None = None) -> str:
@@ -66,7 +67,7 @@ class SweepSpec:
         """The spec with the command line's ``sweep.*`` values in place of the file's."""
         changes = {
             k: getattr(cfg, k)
-            for k in ("metric", "direction", "n_trials", "timesteps", "eval_episodes", "eval_every")
+            for k in ("metric", "direction", "n_trials", "timesteps", "eval_episodes", "eval_every", "prune_after")
             if getattr(cfg, k) is not None
         }
         if "metric" in changes:
@@ -180,6 +181,9 @@ def load_spec(name: str) -> SweepSpec:
     every = settings.get("eval_every")
     if every is not None and not (isinstance(every, int) and not isinstance(every, bool) and every >= 0):
         raise fail("budget.eval_every", f"expected an integer >= 0 (0: no pruning), got {every!r}")
+    prune_after = settings.get("prune_after", 0)
+    if not (isinstance(prune_after, int) and not isinstance(prune_after, bool) and prune_after >= 0):
+        raise fail("budget.prune_after", f"expected an integer >= 0 (training steps), got {prune_after!r}")
 
     base_raw = data.get("base") or []
     if isinstance(base_raw, str):
@@ -222,5 +226,6 @@ def load_spec(name: str) -> SweepSpec:
         timesteps=settings.get("timesteps"),
         eval_episodes=settings.get("eval_episodes"),
         eval_every=every,
+        prune_after=prune_after,
         lines=param_lines,
     )

@@ -1,7 +1,8 @@
 """The Optuna study of a sweep: sampler, pruner, opening it from any number of workers, and its trial budget.
 
 Budget. ``sweep.n_trials`` is the study's total, not one worker's: a trial *counts* when it is finished
-(COMPLETE, PRUNED, or FAIL because the trial itself raised) or claimed (RUNNING or WAITING in some worker).
+(COMPLETE, PRUNED, or FAIL because the trial itself raised) or claimed (RUNNING in some worker); an enqueued
+trial (WAITING: the baseline, a re-run of :mod:`diana_lab.sweeps.confirm`) counts once a worker takes it.
 Each worker checks the count before its first trial and after every trial (:class:`TrialBudget`, Optuna's
 ``MaxTrialsCallback`` with running trials included, so two workers do not both start the last trial), so
 rerunning the same command tops the study up to ``n_trials`` and two workers together run ``n_trials``.
@@ -45,7 +46,7 @@ INTERRUPTED_ATTR = "interrupted"  # SIGINT / SIGTERM: the FAIL does not count, a
 WORKER_ATTR = "worker"  # "host:pid:start" of the process running the trial
 OVERRIDES_ATTR = "overrides"  # the trial's override line (base, command line, params, budget), without the seed
 SEEDS_ATTR = "seeds"  # its training seeds ([]: the config's seed)
-CLAIMED = (TrialState.RUNNING, TrialState.WAITING, TrialState.COMPLETE, TrialState.PRUNED)
+CLAIMED = (TrialState.RUNNING, TrialState.COMPLETE, TrialState.PRUNED)
 
 
 def make_sampler(name: str, seed: int | None = None) -> BaseSampler:
@@ -62,11 +63,12 @@ def make_sampler(name: str, seed: int | None = None) -> BaseSampler:
     raise ValueError(f"sweep.sampler: unknown sampler {name!r}")
 
 
-def make_pruner(name: str, startup_trials: int = 5) -> BasePruner:
+def make_pruner(name: str, startup_trials: int = 5, warmup_steps: int = 0) -> BasePruner:
     """Pruners judge the periodic evaluations (step = training timesteps); the median pruner only after
-    ``startup_trials`` trials have finished, so early noise does not prune everything."""
+    ``startup_trials`` trials have finished and from ``warmup_steps`` training steps on, so early noise (an agent
+    that has not learnt yet scores near zero whatever its reward) does not prune at random."""
     if name == "median":
-        return MedianPruner(n_startup_trials=startup_trials)
+        return MedianPruner(n_startup_trials=startup_trials, n_warmup_steps=warmup_steps)
     if name == "successive_halving":
         return SuccessiveHalvingPruner()
     if name == "none":

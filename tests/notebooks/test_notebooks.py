@@ -102,8 +102,8 @@ def test_compare_notebook_groups_seeds_and_plots(compare_store, tmp_path, monkey
     assert images(nb) >= 3  # learning curves, final metrics, reward terms
 
 
-SWEEP = [  # the reward-shaping sweep on tiny budgets: three trials of a 16 x 12 camera on flat ground
-    "sweep=reward_shaping",
+SWEEP = [  # the flat reward-shaping sweep on tiny budgets: three trials of a 16 x 12 camera on flat ground
+    "sweep=reward_shaping_flat",
     "sweep.n_trials=3",
     "sweep.timesteps=64",
     "sweep.eval_episodes=2",
@@ -152,10 +152,22 @@ def test_sweep_notebook_reproduces_the_best_trial(tmp_path, monkeypatch):
     from diana_lab.config import compose
 
     journal = run_sweep(tmp_path)
-    nb = execute("03_sweep_analysis.ipynb", tmp_path, {"STORAGE": journal, "STUDY_NAME": "reward_shaping"}, monkeypatch)
+    nb = execute(
+        "03_sweep_analysis.ipynb", tmp_path, {"STORAGE": journal, "STUDY_NAME": "reward_shaping_flat"}, monkeypatch
+    )
     assert images(nb) >= 3  # history, importances, slices (+ the best trial's curve)
     line = next(ln for ln in text_of(nb).splitlines() if ln.startswith("python -m diana_lab "))
-    study = optuna.load_study(study_name="reward_shaping", storage=JournalStorage(JournalFileBackend(journal)))
+    study = optuna.load_study(study_name="reward_shaping_flat", storage=JournalStorage(JournalFileBackend(journal)))
     cfg = compose(shlex.split(line)[3:])  # the printed line composes, with the best trial's values
     for key, value in study.best_trial.params.items():
         assert OmegaConf.select(cfg, key) == pytest.approx(value), key
+
+
+def test_sweep_notebook_reads_the_shipped_reward_study(tmp_path, monkeypatch):
+    """By default the notebook reads the Mars-yard reward study in docs/studies/ (no training, no MLflow store)."""
+    journal = NOTEBOOKS.parent / "docs" / "studies" / "reward_shaping.journal"
+    nb = execute("03_sweep_analysis.ipynb", tmp_path, {"STORAGE": str(journal)}, monkeypatch)
+    text = text_of(nb)
+    assert "study reward_shaping: " in text and "spearman" in text  # the study and its budget agreement
+    assert "python -m diana_lab " in text and "reward.terms." in text  # the best trial's command
+    assert images(nb) >= 4  # history, importances, slices, budget curves

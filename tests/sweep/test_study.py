@@ -123,3 +123,32 @@ def test_a_storage_that_is_not_a_journal_is_refused_untouched(tmp_path):
     journal = tmp_path / "s.journal"
     open_study(make_storage(str(journal)), "s", "maximize", RandomSampler(), make_pruner("none"))
     assert make_storage(str(journal)) is not None  # an existing journal still opens
+
+
+def test_the_median_pruner_waits_for_prune_after_steps():
+    study = optuna.create_study(direction="maximize", pruner=make_pruner("median", 0, 100))
+    for value in (0.5, 0.6):  # two finished trials set the median
+        t = study.ask()
+        for step in (50, 150):
+            t.report(value, step)
+        study.tell(t, value)
+    t = study.ask()
+    t.report(0.0, 50)
+    assert not t.should_prune()  # below the median, but before prune_after
+    t.report(0.0, 150)
+    assert t.should_prune()
+
+
+def test_prune_after_is_read_from_the_sweep_file_and_the_command_line(tmp_path):
+    from diana_lab.config.sweep import SweepConfig
+    from diana_lab.sweeps.spec import load_spec
+
+    assert load_spec("reward_shaping").prune_after > 0
+    path = tmp_path / "s.yaml"
+    path.write_text("budget: {prune_after: 7}\nparams:\n  algo.gamma: interval(0.9, 0.99)\n")
+    spec = load_spec(str(path))
+    assert spec.prune_after == 7
+    assert spec.with_settings(SweepConfig(prune_after=9)).prune_after == 9
+    path.write_text("budget: {prune_after: -1}\nparams:\n  algo.gamma: interval(0.9, 0.99)\n")
+    with pytest.raises(ConfigError, match=r"budget\.prune_after"):
+        load_spec(str(path))

@@ -94,3 +94,37 @@ def test_killed_worker_leaves_a_usable_study(tmp_path):
     assert states(load_study(tmp_path)) == ["FAIL", "COMPLETE"]
     _, (parent,), children = mlflow_runs(tmp_path)
     assert sorted(r.info.status for r in children) == ["FINISHED", "KILLED"] and parent.info.status == "FINISHED"
+
+
+def test_local_workers_share_one_study_and_worker_zero_reports_every_trial(tmp_path):
+    path = write_sweep(tmp_path, n_trials=4)
+    proc = run_subprocess(sweep_args(tmp_path, path, "sweep.workers=2", "sweep.sampler_seed=3"), cwd=tmp_path)
+    out = _finish(proc)
+    assert proc.returncode == 0, out[-3000:]
+    assert "worker 1: pid" in out and "study 'tiny': 4 complete, 0 pruned, 0 failed, 0 running" in out
+    study = load_study(tmp_path)
+    assert states(study) == ["COMPLETE"] * 4
+    assert len({t.user_attrs["worker"] for t in study.trials}) == 2  # both processes ran trials
+    assert len({tuple(sorted(t.params.items())) for t in study.trials}) == 4  # seeded apart: no repeated point
+    log = (tmp_path / "out" / "worker_1.log").read_text()
+    assert "Traceback" not in log
+    assert list((tmp_path / "out" / "worker_1").glob("trial_*"))  # worker 1's trials under its own run dir
+    _, parents, children = mlflow_runs(tmp_path)
+    assert len(parents) == 1 and parents[0].info.status == "FINISHED" and len(children) == 4
+
+
+def test_sigterm_to_worker_zero_stops_the_local_workers_and_fails_their_trials(tmp_path):
+    path = write_sweep(tmp_path, n_trials=2, timesteps=10_000_000, eval_every=0)
+    proc = run_subprocess(sweep_args(tmp_path, path, "sweep.workers=2"), cwd=tmp_path)
+    _wait_for_training(proc)
+    deadline = time.monotonic() + 120
+    while len(load_study(tmp_path).trials) < 2 and time.monotonic() < deadline:  # worker 1's trial under way
+        time.sleep(1)
+    time.sleep(5)
+    proc.send_signal(signal.SIGTERM)
+    out = _finish(proc, timeout=200)
+    assert proc.returncode == 143, out[-3000:]
+    study = load_study(tmp_path)
+    assert states(study) == ["FAIL", "FAIL"] and all("interrupted" in t.user_attrs for t in study.trials)
+    _, (parent,), children = mlflow_runs(tmp_path)
+    assert [r.info.status for r in children] == ["KILLED", "KILLED"] and parent.info.status == "KILLED"
