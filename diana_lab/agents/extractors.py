@@ -65,7 +65,7 @@ class RoverExtractor(BaseFeaturesExtractor):
                         "algo.extractor: the strips encoder needs a (C, H, W) map and the map's geometry and the "
                         f"action candidates, got shape {shape} and strips={strips!r}"
                     )
-                encoders[key] = CandidateStrips(shape[1], shape[2], **strips)
+                encoders[key] = CandidateStrips(shape[1], shape[2], **strips, channels=shape[0])
                 dims[key] = encoders[key].out_dim
             elif key == "depth_image" or (key == "elevation_map" and elevation_encoder == "cnn"):
                 if len(shape) != 3:

@@ -59,7 +59,8 @@ def strip_indices(
 
 
 class CandidateStrips(nn.Module):
-    """``(B, 2, rows, cols)`` map (height, known) and ``(B, 7)`` goal vector -> ``(B, headings * D + pooled)``.
+    """``(B, C, rows, cols)`` map (height, known; the stopped-drive channel with ``hazard_radius``) and ``(B, 7)``
+    goal vector -> ``(B, headings * D + pooled)``.
 
     Args:
         rows, cols, cell_size, extent_forward, extent_side: the ``elevation_map`` encoding's geometry.
@@ -67,6 +68,7 @@ class CandidateStrips(nn.Module):
         lateral: offsets (m) of the strip's lines either side of the heading's (the track's width).
         step, reach: spacing of a line's points and how far out they go (m).
         hidden: width of the per-heading network; ``context``: channels of the convolution over headings.
+        channels: the map's channels, each gathered along every strip.
     """
 
     def __init__(
@@ -83,10 +85,13 @@ class CandidateStrips(nn.Module):
         reach: float = 4.0,
         hidden: int = 64,
         context: int = 32,
+        channels: int = 2,
     ) -> None:
         super().__init__()
         if not (step > 0 and reach >= step):
             raise ValueError(f"strips: expected 0 < step <= reach, got step={step}, reach={reach}")
+        if channels < 1:
+            raise ValueError(f"strips: expected a map with >= 1 channel, got {channels}")
         if headings < 2 or not distances:
             raise ValueError(f"strips: expected >= 2 headings and >= 1 distance, got {headings}, {list(distances)}")
         index = strip_indices(rows, cols, cell_size, extent_forward, extent_side, headings, lateral, step, reach)
@@ -97,7 +102,7 @@ class CandidateStrips(nn.Module):
         self.headings, self.n_distances = headings, len(distances)
         n_points = index.shape[1]
         self.per_heading = nn.Sequential(
-            nn.Linear(2 * n_points + 5, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
+            nn.Linear(channels * n_points + 5, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU()
         )
         self.context = nn.Sequential(
             nn.Conv1d(hidden, context, kernel_size=3, padding=1, padding_mode="circular"), nn.ReLU()
@@ -109,7 +114,7 @@ class CandidateStrips(nn.Module):
     def forward(self, grid: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         b, h = grid.shape[0], self.headings
         flat = torch.nn.functional.pad(grid.flatten(2), (0, 1))  # the last index: off the map (0, unknown)
-        strips = flat[:, :, self.index]  # (B, 2, H, P)
+        strips = flat[:, :, self.index]  # (B, C, H, P)
         strips = strips.permute(0, 2, 1, 3).reshape(b, h, -1)
         sin_e, cos_e = goal[:, 1:2], goal[:, 2:3]  # the goal's bearing from the rover's heading
         toward = self.cos_theta * cos_e + self.sin_theta * sin_e  # cos(heading - goal bearing), (B, H)

@@ -44,6 +44,10 @@ class ElevationMapConfig:
     ``memory: true`` fuses every frame of the episode into a world-frame map (``memory_radius`` around the
     episode's first pose, :class:`diana_lab.core.height_memory.HeightMemory`) and shows its window instead of the
     current frame alone: cells seen earlier stay known after they leave the field of view.
+
+    ``hazard_radius > 0`` adds a third channel: 1 in the cells within that distance of a spot where one of the
+    rover's drives was stopped this episode (the tilt guard's halt, a slope it could not climb;
+    :class:`diana_lab.core.hazard_memory.HazardMemory`), so the policy knows where it has already failed.
     """
 
     cell_size: float = 0.25
@@ -57,6 +61,7 @@ class ElevationMapConfig:
     std_ratio: float = 2.0
     memory: bool = False  # fuse the episode's frames into a world-frame map (see the class docstring)
     memory_radius: float = 64.0  # half-width of that map around the episode's first pose (m)
+    hazard_radius: float = 0.0  # the stopped-drive channel's reach round each spot (m); 0: no such channel
 
     def __post_init__(self) -> None:
         key = "sensor.elevation_map"
@@ -69,6 +74,7 @@ class ElevationMapConfig:
         positive_int(f"{key}.nb_neighbors", self.nb_neighbors)
         positive(f"{key}.std_ratio", self.std_ratio)
         positive(f"{key}.memory_radius", self.memory_radius)
+        non_negative(f"{key}.hazard_radius", self.hazard_radius)
         boolean(f"{key}.memory", self.memory)
         rows, cols = self.shape
         if rows * cols > 512 * 512:
@@ -82,6 +88,11 @@ class ElevationMapConfig:
         rows = max(1, round((self.extent_forward + self.extent_back) / self.cell_size))
         cols = max(1, round(2.0 * self.extent_side / self.cell_size))
         return rows, cols
+
+    @property
+    def channels(self) -> int:
+        """Height and known, plus the stopped-drive channel with ``hazard_radius > 0``."""
+        return 3 if self.hazard_radius > 0 else 2
 
 
 @dataclass
@@ -137,6 +148,12 @@ class SensorConfig:
         one_of("sensor.noise", self.noise, NOISE_PRESETS)
         non_negative("sensor.noise_level", self.noise_level)
         one_of("sensor.encoding", self.encoding, ENCODINGS)
+        if self.elevation_map.hazard_radius > 0 and self.encoding != "elevation_map":
+            raise ConfigError(
+                f"sensor.elevation_map.hazard_radius={self.elevation_map.hazard_radius:g}: a channel of the "
+                f"elevation_map encoding, but sensor.encoding={self.encoding}; set sensor.encoding=elevation_map "
+                "or hazard_radius=0"
+            )
         one_of("sensor.backend", self.backend, BACKENDS)
         non_negative_int("sensor.nthreads", self.nthreads)
 

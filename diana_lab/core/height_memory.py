@@ -23,7 +23,15 @@ import math
 
 import numpy as np
 
-__all__ = ["HeightMemory"]
+__all__ = ["HeightMemory", "window_offsets"]
+
+
+def window_offsets(cell_size: float, rows: int, cols: int, extent_forward: float, extent_side: float) -> np.ndarray:
+    """``(rows * cols, 2)`` centres of the window's cells in the heading-aligned frame (x forward, y left),
+    row-major: row 0 lies ``extent_forward`` ahead of the rover, column 0 ``extent_side`` to its left."""
+    ahead = extent_forward - (np.arange(rows) + 0.5) * cell_size
+    left = extent_side - (np.arange(cols) + 0.5) * cell_size
+    return np.stack(np.meshgrid(ahead, left, indexing="ij"), axis=-1).reshape(-1, 2)
 
 
 class HeightMemory:
@@ -61,10 +69,7 @@ class HeightMemory:
         self.mean_height: np.ndarray | None = np.full(self.n * self.n, np.nan, dtype=np.float32) if mean else None
         self._sum = np.zeros(self.n * self.n if mean else 0)
         self._count = np.zeros(self.n * self.n if mean else 0, dtype=np.int64)
-        # window cell centres in the heading-aligned frame (x forward, y left), row-major
-        ahead = extent_forward - (np.arange(rows) + 0.5) * cell_size
-        left = extent_side - (np.arange(cols) + 0.5) * cell_size
-        self._offsets = np.stack(np.meshgrid(ahead, left, indexing="ij"), axis=-1).reshape(-1, 2)
+        self._offsets = window_offsets(cell_size, rows, cols, extent_forward, extent_side)
         self.shape = (rows, cols)
 
     def reset(self) -> None:

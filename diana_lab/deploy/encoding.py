@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from diana_lab.core.hazard_memory import HazardMemory
 from diana_lab.core.height_memory import HeightMemory
 from diana_lab.core.rotations import level_points
 from diana_lab.deploy.geometry import SensorModel
@@ -73,6 +74,9 @@ class CloudEncoder:
     def reset(self) -> None:
         """A new traverse: stateful encodings forget their map."""
 
+    def mark_hazard(self, xy: np.ndarray) -> None:
+        """A drive was stopped at world ``xy``: kept only by an ``elevation_map`` with the stopped-drive channel."""
+
     def __call__(self, points: np.ndarray, pose: Pose) -> np.ndarray:
         raise NotImplementedError
 
@@ -100,7 +104,9 @@ class DepthImage(CloudEncoder):
 
 
 class ElevationMap(CloudEncoder):
-    """``(2, rows, cols)``: highest levelled point per cell and a known mask (see the training encoder)."""
+    """``(2, rows, cols)``: highest levelled point per cell and a known mask (see the training encoder); a third
+    channel, the stopped-drive channel, where the sidecar's ``hazard_radius`` is set (:meth:`mark_hazard`, fed by
+    ``Navigator.report_hazard``)."""
 
     def __init__(self, sensor: SensorSpec, encoding: EncodingSpec) -> None:
         super().__init__(sensor, encoding)
@@ -110,9 +116,19 @@ class ElevationMap(CloudEncoder):
         self.voxel_size, self.outlier_removal = float(p("voxel_size")), bool(p("outlier_removal"))
         self.nb_neighbors, self.std_ratio = int(p("nb_neighbors")), float(p("std_ratio"))
         self.unknown_height = np.float32(p("unknown_height"))
-        if len(self.shape) != 3 or self.shape[0] != 2:
-            raise ValueError(f"encoding.shape: expected (2, rows, cols) for elevation_map, got {self.shape}")
+        hazard_radius = float(encoding.params.get("hazard_radius", 0.0))  # absent from older sidecars: none
+        channels = 3 if hazard_radius > 0 else 2
+        if len(self.shape) != 3 or self.shape[0] != channels:
+            raise ValueError(
+                f"encoding.shape: expected ({channels}, rows, cols) for elevation_map with hazard_radius "
+                f"{hazard_radius:g}, got {self.shape}"
+            )
         self.rows, self.cols = self.shape[1], self.shape[2]
+        self.hazards = (
+            HazardMemory(hazard_radius, self.cell_size, self.rows, self.cols, self.extent_forward, self.extent_side)
+            if hazard_radius > 0
+            else None
+        )
         # the world points of the latest frame the memory fused, when they are every visible return of that frame
         # (no voxel or outlier filter): the slope shield then maps them without levelling them again
         self.fused_points: np.ndarray | None = None
@@ -127,6 +143,12 @@ class ElevationMap(CloudEncoder):
     def reset(self) -> None:
         if self.memory is not None:
             self.memory.reset()
+        if self.hazards is not None:
+            self.hazards.reset()
+
+    def mark_hazard(self, xy: np.ndarray) -> None:
+        if self.hazards is not None:
+            self.hazards.mark(xy)
 
     def _filter(self, pts: np.ndarray) -> np.ndarray:
         if len(pts) == 0 or (self.voxel_size <= 0 and not self.outlier_removal):
@@ -157,10 +179,12 @@ class ElevationMap(CloudEncoder):
             top = np.full(rows * cols, -np.inf, dtype=np.float32)
             np.maximum.at(top, row.take(ok) * cols + col.take(ok), pts[:, 2].take(ok))
         known = top > -np.inf
-        out = np.empty((2, rows * cols), dtype=np.float32)
+        out = np.empty((self.shape[0], rows * cols), dtype=np.float32)
         height = np.clip(top, -clip, clip) * (0.5 / clip) + 0.5
         out[0] = np.where(known, height, self.unknown_height)
         out[1] = known
+        if self.hazards is not None:
+            out[2] = self.hazards.window(pose.x, pose.y, pose.yaw)
         return out.reshape(self.shape)
 
 

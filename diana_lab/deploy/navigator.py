@@ -178,16 +178,19 @@ class Navigator:
         self._site_warned = False
 
     def report_hazard(self, xy: Any) -> None:
-        """Tell the slope shield where the wheels met ground they could not drive (world ``(x, y)``): where the
-        rover's tilt fault protection stopped a drive, or a slope held it. Later waypoints keep the sidecar's
-        ``shield.hazard_radius`` away from it until :meth:`reset` (the simulator does the same with the
-        dynamics' ``hazard_xy``). Without the shield, or with ``hazard_radius`` 0, nothing is kept."""
+        """Tell the navigator where the wheels met ground they could not drive (world ``(x, y)``): where the
+        rover's tilt fault protection stopped a drive, or a slope held it; report it before the next decision.
+        A policy trained with the map's stopped-drive channel (``sensor.elevation_map.hazard_radius``) sees it
+        from then on, and the slope shield keeps later waypoints its ``shield.hazard_radius`` away from it,
+        both until :meth:`reset` (the simulator does the same with the dynamics' ``hazard_xy``). With neither,
+        nothing is kept."""
         try:
             point = np.asarray(xy, dtype=np.float64).reshape(-1)
         except (TypeError, ValueError):
             point = np.zeros(0)
         if point.shape != (2,) or not np.all(np.isfinite(point)):
             raise ValueError(f"report_hazard: expected a finite world (x, y), got {xy!r}")
+        self.encoder.mark_hazard(point)
         if self.shield is not None:
             self.shield.mark_hazard(point)
 

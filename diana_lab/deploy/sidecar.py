@@ -26,7 +26,7 @@ __all__ = ["action_spec", "encoding_spec", "expected_shape", "observation_statis
 def expected_shape(sensor: SensorConfig) -> tuple[int, ...]:
     """The encoding's tensor shape for a sensor config (without building the sensor or a world)."""
     if sensor.encoding == "elevation_map":
-        return (2, *sensor.elevation_map.shape)
+        return (sensor.elevation_map.channels, *sensor.elevation_map.shape)
     if sensor.encoding == "points":
         return (sensor.points.n_points, 4)
     if isinstance(sensor, DepthCameraConfig):

@@ -94,7 +94,8 @@ class EncodingSpec:
 
     ``params`` per encoding: ``depth_image``: ``no_return``; ``elevation_map``: ``cell_size``,
     ``extent_forward``, ``extent_back``, ``extent_side``, ``height_clip``, ``voxel_size``, ``outlier_removal``,
-    ``nb_neighbors``, ``std_ratio``, ``unknown_height``; ``points``: ``n_points``, ``method``, ``voxel_size``,
+    ``nb_neighbors``, ``std_ratio``, ``unknown_height``, ``memory``, ``memory_radius``, ``hazard_radius`` (absent
+    in older sidecars: 0, no stopped-drive channel); ``points``: ``n_points``, ``method``, ``voxel_size``,
     ``scale`` (xyz are divided by it).
     """
 

@@ -198,6 +198,8 @@ class RoverNavEnv(gym.Env):
         if max_tilt > TILT_LIMIT_DEG:
             self._time_over_tilt += float(result.sample_durations()[result.trace_tilt_deg > TILT_LIMIT_DEG].sum())
         self._trail.append(result.trace_xy[1:])
+        if result.hazard_xy is not None:
+            self.sensor.mark_hazard(result.hazard_xy)
         obs = self._observe()
         outcome = self._outcome(result)
         terminated = outcome is not None and outcome not in ("timeout", "stuck")

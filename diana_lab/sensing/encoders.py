@@ -26,6 +26,7 @@ import open3d as o3d
 from gymnasium import spaces
 
 from diana_lab.config.sensing import ElevationMapConfig, PointsConfig, SensorConfig
+from diana_lab.core.hazard_memory import HazardMemory
 from diana_lab.core.height_memory import HeightMemory
 from diana_lab.core.rotations import level_points
 from diana_lab.core.validation import ConfigError
@@ -70,6 +71,9 @@ class Encoder:
     def reset(self) -> None:
         """Start an episode (only stateful encodings have anything to forget)."""
 
+    def mark_hazard(self, xy: np.ndarray) -> None:
+        """A drive was stopped at world ``xy`` (only an encoding with a stopped-drive channel keeps it)."""
+
     def __call__(self, frame: SensorFrame) -> np.ndarray:
         raise NotImplementedError
 
@@ -91,21 +95,33 @@ class DepthImageEncoder(Encoder):
 
 
 class ElevationMapEncoder(Encoder):
-    """Rover-centred 2.5-D grid of the highest return per cell, with a known/unknown mask channel."""
+    """Rover-centred 2.5-D grid of the highest return per cell, with a known/unknown mask channel (and, with
+    ``hazard_radius``, the stopped-drive channel)."""
 
     def __init__(self, cfg: ElevationMapConfig) -> None:
         self.cfg = cfg
         self.rows, self.cols = cfg.shape
-        self.space = spaces.Box(0.0, 1.0, (2, self.rows, self.cols), np.float32)
+        self.space = spaces.Box(0.0, 1.0, (cfg.channels, self.rows, self.cols), np.float32)
         self.memory = (
             HeightMemory(cfg.cell_size, cfg.memory_radius, self.rows, self.cols, cfg.extent_forward, cfg.extent_side)
             if cfg.memory
+            else None
+        )
+        self.hazards = (
+            HazardMemory(cfg.hazard_radius, cfg.cell_size, self.rows, self.cols, cfg.extent_forward, cfg.extent_side)
+            if cfg.hazard_radius > 0
             else None
         )
 
     def reset(self) -> None:
         if self.memory is not None:
             self.memory.reset()
+        if self.hazards is not None:
+            self.hazards.reset()
+
+    def mark_hazard(self, xy: np.ndarray) -> None:
+        if self.hazards is not None:
+            self.hazards.mark(xy)
 
     def _filter(self, points: np.ndarray) -> np.ndarray:
         c = self.cfg
@@ -134,10 +150,12 @@ class ElevationMapEncoder(Encoder):
             top = np.full(rows * cols, -np.inf, dtype=np.float32)
             np.maximum.at(top, row.take(ok) * cols + col.take(ok), pts[:, 2].take(ok))  # per-cell max, no loop
         known = top > -np.inf
-        out = np.empty((2, rows * cols), dtype=np.float32)
+        out = np.empty((c.channels, rows * cols), dtype=np.float32)
         height = np.clip(top, -c.height_clip, c.height_clip) * (0.5 / c.height_clip) + 0.5
         out[0] = np.where(known, height, UNKNOWN_HEIGHT)
         out[1] = known
+        if self.hazards is not None:
+            out[2] = self.hazards.window(float(frame.position[0]), float(frame.position[1]), float(frame.rpy[2]))
         return out.reshape(self.space.shape)
 
 

@@ -90,6 +90,11 @@ class RaySensor:
         self.noise.reset(rng)
         self.encoder.reset()
 
+    def mark_hazard(self, xy: np.ndarray) -> None:
+        """The rover reported a drive stopped at world ``xy`` (``WaypointResult.hazard_xy``): the encoding's
+        stopped-drive channel, if it has one, shows it from the next observation on."""
+        self.encoder.mark_hazard(xy)
+
     def rays_world(self, position: np.ndarray, rpy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World ray origins and unit directions, ``(N, 3)`` each (new arrays), for a rover pose."""
         rotation = rpy_matrix(rpy)

@@ -24,17 +24,12 @@ from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
 
+from diana_lab.training.threads import core_ids
+
 __all__ = ["LocalWorkers", "core_shares", "pin_to"]
 
 STOP_WAIT_S = 120.0  # how long a stopped worker gets to mark its trial FAIL and end its MLflow run
 _SEED_STRIDE = 1_000_003  # sampler seeds of the workers: far apart, so a rerun's (seed + done) never meets them
-
-
-def available_cores() -> list[int]:
-    try:
-        return sorted(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux: no pinning, only thread counts
-        return list(range(os.cpu_count() or 1))
 
 
 def core_shares(cores: Sequence[int], workers: int) -> list[list[int]]:
@@ -107,7 +102,7 @@ class LocalWorkers:
         sampler_seed: int | None,
         hydra_overrides: Sequence[str] = (),
     ) -> LocalWorkers:
-        shares = core_shares(available_cores(), workers)
+        shares = core_shares(core_ids(), workers)
         pin_to(shares[0])
         self = cls(run_dir)
         for i in range(1, workers):

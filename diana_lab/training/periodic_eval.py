@@ -49,6 +49,9 @@ class PeriodicEvaluation(BaseCallback):
     tracker: where ``eval_*`` metrics and the ``best/`` model go.
     best_dir: local folder of the best model so far.
     on_eval: called with ``(timesteps, summary)`` after each evaluation is recorded; may raise to stop.
+    final_follows: a final evaluation runs on the same suite when training ends, so an evaluation due in the
+        last rollout (at the budget, one update before the final model) is skipped: it would cost a suite's
+        time, and hand a pruner a value the final evaluation replaces moments later.
     """
 
     def __init__(
@@ -58,10 +61,12 @@ class PeriodicEvaluation(BaseCallback):
         tracker: Tracker,
         best_dir: Path,
         on_eval: EvalHook | None = None,
+        final_follows: bool = False,
     ) -> None:
         super().__init__()
         self.make_env, self.cfg, self.tracker, self.best_dir = make_env, eval_cfg, tracker, best_dir
-        self.on_eval = on_eval
+        self.on_eval, self.final_follows = on_eval, final_follows
+        self.end_step: int | None = None  # where this learn() call stops (SB3's total, a resumed run's included)
         self.every = eval_cfg.every
         self.best_spl = -math.inf
         self.last_step: int | None = None
@@ -73,11 +78,17 @@ class PeriodicEvaluation(BaseCallback):
     def _on_training_start(self) -> None:
         if self.last_step is None:
             self.last_step = self.model.num_timesteps  # a resumed run counts from where it stopped
+        total = self.locals.get("total_timesteps")
+        self.end_step = int(total) if isinstance(total, int) else None
 
     def _on_step(self) -> bool:
-        if self.every > 0 and self.num_timesteps - (self.last_step or 0) >= self.every:
+        if self.every > 0 and self.num_timesteps - (self.last_step or 0) >= self.every and not self._final_next():
             self.evaluate()
         return True
+
+    def _final_next(self) -> bool:
+        """The budget is reached in this rollout and the final evaluation follows it."""
+        return self.final_follows and self.end_step is not None and self.num_timesteps >= self.end_step
 
     def env(self) -> gym.Env:
 

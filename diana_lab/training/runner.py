@@ -249,6 +249,7 @@ class TrainingRun:
             self.tracker,
             self.run_dir / "best",
             on_eval=self.ctx.on_eval,
+            final_follows=self.train_cfg.final_eval,
         )
         threads = PhaseThreads(self.train_cfg.torch_threads or None, self.train_cfg.update_threads)
         cbs: list[BaseCallback] = [InterruptCheck(), threads, EpisodeStats(), self.checkpoints, self.evaluator]

@@ -12,15 +12,20 @@ import os
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
-__all__ = ["PhaseThreads", "available_cores"]
+__all__ = ["PhaseThreads", "available_cores", "core_ids"]
+
+
+def core_ids() -> list[int]:
+    """The ids of the cores this process may run on, sorted."""
+    try:
+        return sorted(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux: no affinity, every core
+        return list(range(os.cpu_count() or 1))
 
 
 def available_cores() -> int:
-    """The cores this process may run on."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
+    """How many cores this process may run on."""
+    return len(core_ids())
 
 
 class PhaseThreads(BaseCallback):

@@ -100,6 +100,13 @@ CASES = {
         "action_space=discrete",
         "algo.extractor.elevation_encoder=strips",
     ],
+    # the main command's kind of map with the stopped-drive channel, where a low tilt guard halts drives
+    "lidar_map_hazards_strips": [
+        *SHIELDED_RUN,
+        "sensor.elevation_map.hazard_radius=0.75",
+        "robot.tilt_guard_deg=8",
+        "algo.extractor.elevation_encoder=strips",
+    ],
     # depth camera + points (voxel then stride subsample, order-dependent), TD3, world-frame squares
     "camera_points_td3_world": [
         "sensor.encoding=points",
@@ -145,6 +152,8 @@ def test_other_sensors_and_action_spaces_match_torch(name, exporter, tmp_path, s
     finally:
         run.env.close()
     print(f"{name} parity over 150 observations, {exporter} exporter: {err}")
+    if "hazards" in name:  # drives were stopped, so the stopped-drive channel was compared with marks in it
+        assert sum(h is not None for h in rec.hazards) >= 3
     assert nav.spec.opset == opset and nav.spec.source["exporter"] == exporter
     assert err["goal"] == 0.0
     assert err["encoding"] <= 1e-6

@@ -69,6 +69,21 @@ CASES = {
         "sensor.elevation_map.memory=true",
         "sensor.noise=harsh",
     ],
+    "yard-guard-map-hazards": [
+        "world=mars_yard",
+        "action_space=discrete",
+        "robot.tilt_guard_deg=20",
+        *LIDAR_MAP,
+        "sensor.elevation_map.memory=true",
+        "sensor.elevation_map.hazard_radius=0.75",
+    ],
+    "hills-map-hazards-no-memory": [
+        "world=hills",
+        "robot.tilt_guard_deg=6",
+        "sensor.encoding=elevation_map",
+        "sensor.elevation_map.hazard_radius=1.0",
+        *SMALL_CAMERA,
+    ],
     "hills-curriculum-paper-reward": [
         "world=hills",
         "reward=paper",
@@ -92,10 +107,11 @@ def _close(a: np.ndarray, b: np.ndarray, atol: float, what: str) -> None:
     )
 
 
-def drive_both(overrides: list[str], steps: int, seed: int = 7) -> dict[str, int]:
+def drive_both(overrides: list[str], steps: int, seed: int = 7, marked: list[float] | None = None) -> dict[str, int]:
     """Step the batched env and ``N_ROVERS`` scalar envs with the same actions; assert they agree; return the
     outcomes of the episodes that ended (episodes of at most 12 steps unless ``overrides`` say otherwise, so that
-    the resets are compared too)."""
+    the resets are compared too). ``marked`` collects each step's share of map cells in the stopped-drive
+    channel (the map's third), when there is one."""
     groups = env_config(C.compose(["episode.max_steps=12", *overrides]))
     world = shared_world(groups["world"])
     batched = BatchedRoverEnv(groups, N_ROVERS, world_instances=[world])
@@ -113,6 +129,8 @@ def drive_both(overrides: list[str], steps: int, seed: int = 7) -> dict[str, int
         for t in range(steps):
             actions = _actions(batched, rng)
             obs, rewards, dones, infos = batched.step(actions)
+            if marked is not None and obs[key].ndim == 4 and obs[key].shape[1] == 3:
+                marked.append(float(obs[key][:, 2].mean()))
             for i, env in enumerate(scalar):
                 o, r, terminated, truncated, info = env.step(actions[i])
                 where = f"step {t} rover {i}"
@@ -143,8 +161,11 @@ def drive_both(overrides: list[str], steps: int, seed: int = 7) -> dict[str, int
 
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_batched_env_matches_the_scalar_env(case: str) -> None:
-    outcomes = drive_both(CASES[case], steps=40)
+    marked: list[float] = []
+    outcomes = drive_both(CASES[case], steps=40, marked=marked)
     assert sum(outcomes.values()) >= 2, f"too few episodes ended to compare resets: {outcomes}"
+    if "hazard" in case:  # the stopped-drive channel was exercised: spots marked, and forgotten at resets
+        assert max(marked) > 0 and min(marked) < max(marked), f"the channel never changed: {marked}"
 
 
 def test_batched_env_matches_on_a_dem_with_obstacles(tmp_path) -> None:

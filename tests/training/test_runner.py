@@ -45,6 +45,17 @@ def test_run_finishes_with_params_metrics_and_loadable_model(algo, tmp_path):
     assert model.num_timesteps >= 256
 
 
+@pytest.mark.parametrize(("final_eval", "steps"), [(True, [128, 256]), (False, [128, 256])])
+def test_an_evaluation_due_at_the_budget_is_left_to_the_final_one(final_eval, steps, tmp_path):
+    """Periodic evaluations every 128 steps of a 256-step run: with the final evaluation on, the one due at the
+    budget is skipped (the final one follows on the same suite); with it off, the periodic one is the last."""
+    args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], f"train.final_eval={str(final_eval).lower()}"]
+    assert run_in_process([*args, *store_args(tmp_path)]) == 0
+    client, found = runs(tmp_path)
+    history = client.get_metric_history(found[0].info.run_id, "eval_success_rate")
+    assert sorted(m.step for m in history) == steps
+
+
 @pytest.mark.parametrize(("algo", "extra"), [("ppo", ["algo.normalize=true"]), ("sac", [])])
 def test_resume_continues_step_counter_and_run(algo, extra, tmp_path):
     base = [f"algo={algo}", *TINY, *ALGO_TINY[algo], *extra, "eval.every=0", "train.final_eval=false"]

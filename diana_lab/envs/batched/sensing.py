@@ -5,7 +5,8 @@ window), cast by the same heightfield kernels (:mod:`diana_lab.sensing.heightfie
 near field rasterised by :mod:`diana_lab.sensing.pinhole_raster`), one rover per thread (numba ``prange``). The
 ``depth_image`` and ``elevation_map`` encodings (with and without memory, with the voxel filter) are compiled
 here too, to the scalar encoders' arithmetic (:mod:`diana_lab.sensing.encoders`,
-:class:`~diana_lab.core.height_memory.HeightMemory`), float32 where they are float32.
+:class:`~diana_lab.core.height_memory.HeightMemory`), float32 where they are float32, and so is the map's
+stopped-drive channel (:class:`~diana_lab.core.hazard_memory.HazardMemory`).
 
 Three things stay per rover, in Python, through the scalar code itself (exact, and slow): sensor noise (each
 rover's :class:`~diana_lab.sensing.noise.NoiseModel`, drawing from that rover's generator), the ``points``
@@ -19,6 +20,7 @@ import math
 import numpy as np
 from numba import prange
 
+from diana_lab.core.height_memory import window_offsets
 from diana_lab.sensing.frame import SensorFrame
 from diana_lab.sensing.heightfield_cast import heightfield_for
 from diana_lab.sensing.heightfield_kernels import _jit, cast_obstacles, cast_terrain
@@ -27,7 +29,7 @@ from diana_lab.sensing.pinhole_raster import DELTA, REACH_CELLS, REACH_M, raster
 from diana_lab.sensing.returns import valid_points
 from diana_lab.sensing.sensor import RaySensor
 
-__all__ = ["BatchedSensor", "cast_batch", "elevation_batch"]
+__all__ = ["BatchedSensor", "cast_batch", "elevation_batch", "hazard_batch"]
 
 _NO_BOX = np.array([0, -1, 0, -1], dtype=np.int64)
 
@@ -273,6 +275,31 @@ def elevation_batch(
                 o[n_rows * n_cols + k] = f32(0.0)
 
 
+@_jit(parallel=True)
+def hazard_batch(rows, state, spots, n_spots, offsets, r2, channel, out):  # pragma: no cover (numba)
+    """The stopped-drive channel of each rover's map (``HazardMemory.window``, the same float64 arithmetic): cell
+    ``k`` of ``out[i, channel * cells:]`` is 1 where its centre (``offsets``, heading frame) round the rover's pose
+    lies within ``sqrt(r2)`` of one of the rover's ``n_spots[i]`` spots, else 0."""
+    cells = offsets.shape[0]
+    base = channel * cells
+    for r in prange(rows.shape[0]):
+        i = rows[r]
+        o = out[i]
+        px, py, yaw = state[i, 0], state[i, 1], state[i, 5]
+        c, s = math.cos(yaw), math.sin(yaw)
+        for k in range(cells):
+            dx, dy = offsets[k, 0], offsets[k, 1]
+            wx = px + c * dx - s * dy
+            wy = py + s * dx + c * dy
+            near = False
+            for j in range(n_spots[i]):
+                ex, ey = wx - spots[i, j, 0], wy - spots[i, j, 1]
+                if ex * ex + ey * ey <= r2:
+                    near = True
+                    break
+            o[base + k] = np.float32(1.0) if near else np.float32(0.0)
+
+
 class BatchedSensor:
     """``n`` copies of one scalar sensor: :meth:`observe` fills :attr:`obs` for the rovers named.
 
@@ -336,6 +363,12 @@ class BatchedSensor:
             from diana_lab.sensing.encoders import make_encoder
 
             self.encoders = [make_encoder(cfg, sensor.image_shape, sensor.axis_cos) for _ in range(n)]
+        # the stopped-drive channel (elevation_map.hazard_radius): each rover's spots this episode
+        m = cfg.elevation_map
+        self.hazard_r2 = float(m.hazard_radius) ** 2 if self.encoding == "elevation_map" else 0.0
+        self.spots = np.zeros((n, 8 if self.hazard_r2 > 0 else 0, 2))
+        self.n_spots = np.zeros(n, dtype=np.int64)
+        self.hazard_offsets = window_offsets(m.cell_size, *m.shape, m.extent_forward, m.extent_side)
 
     def reset(self, i: int, rng: np.random.Generator) -> None:
         """Rover ``i`` starts an episode (``RaySensor.reset``): its noise draws from ``rng``, its map is empty."""
@@ -346,6 +379,20 @@ class BatchedSensor:
             self.mem_set[i] = False
         if self.encoders is not None:
             self.encoders[i].reset()
+        self.n_spots[i] = 0
+
+    def mark_hazards(self, rows: np.ndarray, xy: np.ndarray) -> None:
+        """The rovers ``rows`` had a drive stopped at world ``xy`` (``(len(rows), 2)``): their maps' stopped-drive
+        channel shows it from the next observation on (``RaySensor.mark_hazard``); nothing without the channel."""
+        if self.hazard_r2 <= 0:
+            return
+        for i, point in zip(rows, xy):
+            if self.encoders is not None:
+                self.encoders[i].mark_hazard(point)
+            if self.n_spots[i] == self.spots.shape[1]:
+                self.spots = np.concatenate([self.spots, np.zeros_like(self.spots)], axis=1)
+            self.spots[i, self.n_spots[i]] = point[:2]
+            self.n_spots[i] += 1
 
     def observe(self, rows: np.ndarray, state: np.ndarray) -> None:
         """Cast and encode the frames of the rovers ``rows`` at ``state`` (x, y, z, roll, pitch, yaw) into
@@ -373,6 +420,8 @@ class BatchedSensor:
                 rows, state, self.cloud, self.counts, self.map_params, voxel, self.memory, self.mem_origin,
                 self.mem_set, self.mem_radius, self.offsets, self._flat,
             )  # fmt: skip
+            if self.hazard_r2 > 0:
+                hazard_batch(rows, state, self.spots, self.n_spots, self.hazard_offsets, self.hazard_r2, 2, self._flat)
         else:
             self._encode_slow(rows, state)
 

@@ -230,6 +230,7 @@ class BatchedRoverEnv(VecEnv):
         self.halts += self.code == R_HALTED
         self.max_tilt = np.maximum(self.max_tilt, stats[:, 1])
         self.time_over_tilt += stats[:, 4]
+        self._mark_hazards()
         self._observe(rows)
         outcome = self._outcomes(stats[:, 0])
         truncated = np.isin(outcome, ("timeout", "stuck"))
@@ -392,6 +393,14 @@ class BatchedRoverEnv(VecEnv):
             sel = rows[self.world_of[rows] == w]
             if sel.size:
                 part.sensor.observe(sel, self.state)
+
+    def _mark_hazards(self) -> None:
+        """Where this step stopped a drive, into the sensors' stopped-drive channel (``RoverNavEnv.step``)."""
+        stopped = np.flatnonzero(np.isfinite(self.hazard[:, 0]))
+        for w, part in enumerate(self.parts):
+            sel = stopped[self.world_of[stopped] == w]
+            if sel.size:
+                part.sensor.mark_hazards(sel, self.hazard[sel])
 
     def _outcomes(self, nearest: np.ndarray) -> np.ndarray:
         """Each rover's episode outcome after this step (``""``: it goes on), as ``RoverNavEnv._outcome``."""
