@@ -61,6 +61,13 @@ def main(cfg: DictConfig) -> None:
             "is not a spread over seeds (keep one run per seed with filter=...)",
             file=sys.stderr,
         )
+    for group, runs in c.unfinished.items():
+        print(
+            f"warning: group {group!r} counts {len(runs)} run(s) that did not finish: {', '.join(runs)}; their "
+            "metrics are what they logged before they stopped (leave them out with "
+            "filter=\"attributes.status = 'FINISHED'\")",
+            file=sys.stderr,
+        )
     files = write_report(c, Path(str(cfg.output)))
     where = f"{', '.join(experiments)}" + (f", filter {cfg.filter!r}" if cfg.filter else "")
     print(f"{len(c.runs)} runs in {len(c.groups)} groups ({where}):\n")

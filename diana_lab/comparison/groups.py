@@ -18,7 +18,15 @@ import pandas as pd
 
 from diana_lab.comparison.runs import tag
 
-__all__ = ["IGNORED_PARAMS", "aggregate", "assign_groups", "learning_curves", "repeated_seeds", "runs_table"]
+__all__ = [
+    "IGNORED_PARAMS",
+    "aggregate",
+    "assign_groups",
+    "learning_curves",
+    "repeated_seeds",
+    "runs_table",
+    "unfinished_runs",
+]
 
 # params that do not change what is learnt (or are the seed): never a reason to split a group
 IGNORED_PARAMS = (
@@ -170,6 +178,21 @@ def repeated_seeds(table: pd.DataFrame) -> dict[str, list[str]]:
         repeated = _in_seed_order(counts.index[counts > 1])
         if repeated:
             out[str(name)] = repeated
+    return out
+
+
+def unfinished_runs(table: pd.DataFrame) -> dict[str, list[str]]:
+    """Groups of :func:`runs_table` holding runs whose MLflow status is not ``FINISHED`` (still running, killed,
+    failed), with those runs' names (their id where unnamed) and status. Their metrics are whatever they had
+    logged when they stopped (a periodic evaluation, not the final one), yet they count in the group's mean."""
+    out: dict[str, list[str]] = {}
+    status = table["status"].fillna("").astype(str) if "status" in table else pd.Series("", index=table.index)
+    for name, block in table[status != "FINISHED"].groupby("group", sort=False):
+        names = block["run_name"] if "run_name" in block else block["run_id"]
+        out[str(name)] = [
+            f"{n or rid} ({st or 'no status'})"
+            for n, rid, st in zip(names, block["run_id"], status[block.index], strict=True)
+        ]
     return out
 
 

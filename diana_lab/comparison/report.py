@@ -16,7 +16,14 @@ from pathlib import Path
 
 import pandas as pd
 
-from diana_lab.comparison.groups import aggregate, assign_groups, learning_curves, repeated_seeds, runs_table
+from diana_lab.comparison.groups import (
+    aggregate,
+    assign_groups,
+    learning_curves,
+    repeated_seeds,
+    runs_table,
+    unfinished_runs,
+)
 from diana_lab.comparison.plots import plot_final_metrics, plot_learning_curves, save_figure
 from diana_lab.comparison.runs import ComparisonError, load_runs, metric_histories
 
@@ -49,6 +56,7 @@ class Comparison:
     missing_metrics: dict[str, list[str]] = field(default_factory=dict)  # not logged by any run -> close names
     skipped: list[str] = field(default_factory=list)  # names of matching runs without any of the metrics
     repeated_seeds: dict[str, list[str]] = field(default_factory=dict)  # group -> seeds two of its runs share
+    unfinished: dict[str, list[str]] = field(default_factory=dict)  # group -> its runs that did not finish
 
 
 def _missing(raw: pd.DataFrame, wanted: Sequence[str]) -> dict[str, list[str]]:
@@ -87,6 +95,7 @@ def compare_runs(
         missing_metrics=_missing(raw, (*metrics, *curves)),
         skipped=skipped,
         repeated_seeds=repeated_seeds(table),
+        unfinished=unfinished_runs(table),
     )
 
 

@@ -92,3 +92,26 @@ def test_group_by_a_tag_no_run_has_exits_2_naming_the_available_tags(store, tmp_
     assert "algo.learning_rate: config values, not tags" in err
     assert "the tags of these runs: action_space, algo, dynamics" in err and "mlflow.runName" not in err
     assert not (tmp_path / "cmp" / "groups.csv").exists()
+
+
+def test_a_group_counting_a_run_that_did_not_finish_warns_naming_it(tmp_path, capsys):
+    from mlflow.tracking import MlflowClient
+
+    from .store import make_store
+
+    uri = make_store(tmp_path / "store")
+    client = MlflowClient(uri)
+    killed = client.search_runs([client.get_experiment_by_name("diana_lab").experiment_id], "tags.algo = 'a2c'")[0]
+    client.set_terminated(killed.info.run_id, "KILLED")  # as an interrupted run ends
+    code = run_compare([f"tracking.uri={uri}", "group_by=[algo]", f"output={tmp_path / 'cmp'}"])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert "warning: group 'algo=a2c' counts 1 run(s) that did not finish: a2c-flat-depth_camera-s0 (KILLED)" in (
+        captured.err
+    )
+    assert "group 'algo=ppo' counts" not in captured.err  # its runs all finished
+    code = run_compare(
+        [f"tracking.uri={uri}", "filter=\"attributes.status = 'FINISHED'\"", f"output={tmp_path / 'cmp2'}"]
+    )
+    captured = capsys.readouterr()
+    assert code == 0 and "did not finish" not in captured.err and "3 runs in" in captured.out

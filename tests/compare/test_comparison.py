@@ -190,3 +190,18 @@ def test_with_many_groups_the_bar_legend_covers_no_bar(tmp_path):
     renderer = fig.canvas.get_renderer()
     legend, plot_area = ax.get_legend().get_window_extent(renderer), ax.get_window_extent(renderer)
     assert legend.x0 >= plot_area.x1  # beside the axes, not over the bars (they reach 0.95 of the height)
+
+
+def test_groups_counting_runs_that_did_not_finish_are_reported():
+    from diana_lab.comparison.groups import unfinished_runs
+
+    table = pd.DataFrame(
+        {
+            "run_id": ["r0", "r1", "r2", "r3"],
+            "run_name": ["ppo-s0", "ppo-s1", "", "a2c-s0"],
+            "status": ["FINISHED", "KILLED", "RUNNING", "FINISHED"],
+            "group": ["a", "a", "a", "b"],
+        }
+    )
+    assert unfinished_runs(table) == {"a": ["ppo-s1 (KILLED)", "r2 (RUNNING)"]}
+    assert unfinished_runs(table.assign(status="FINISHED")) == {}
