@@ -110,3 +110,29 @@ def test_an_unknown_shield_option_lists_the_options():
 
     with pytest.raises(MissingConfigException, match="shield"):
         compose(["shield=refrence"])
+
+
+def test_the_veto_only_option_checks_tilt_and_obstacles_and_never_steers(tmp_path):
+    """``shield=veto``: the reference shield's checks on the rover's own map, none of its rules (approach, detour,
+    route) and no memory of places or stopped drives; behind it the bearing baseline is vetoed on the yard and
+    falls back to its next candidate, and no rule ever decides."""
+    import json
+    import subprocess
+    import sys
+
+    cfg = to_object("eval", compose(["shield=veto"]).eval).shield
+    reference = to_object("eval", compose(["shield=reference"]).eval).shield
+    assert cfg.enabled and list(cfg.rules) == [] and cfg.revisit_radius == 0 and cfg.hazard_radius == 0
+    assert (cfg.limit_deg, cfg.obstacle_height) == (reference.limit_deg, reference.obstacle_height)
+    assert list(ShieldSettings.from_config(cfg, ROBOT).rules) == []
+    out = tmp_path / "summary.json"
+    args = ["policy=bearing", "shield=veto", "eval.episodes=3", "eval.seed=1002", "eval.plots=false"]
+    args += ["eval.video=false", "tracking.enabled=false", f"output={out}", f"hydra.run.dir={tmp_path / 'run'}"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "diana_lab.evaluate", *args], capture_output=True, text=True, timeout=300
+    )
+    assert proc.returncode == 0, proc.stderr
+    summary = json.loads(out.read_text())
+    assert summary["shield_veto_rate"] > 0
+    assert summary["shield_approach_rate"] == summary["shield_detour_rate"] == summary["shield_route_rate"] == 0
+    assert summary["shield_hazard_veto_rate"] == summary["shield_place_veto_rate"] == 0
