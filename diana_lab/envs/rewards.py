@@ -76,6 +76,12 @@ def out_of_bounds(ctx: RewardContext) -> float:
     return -1.0 if ctx.outcome == "out_of_bounds" else 0.0
 
 
+def stuck(ctx: RewardContext) -> float:
+    """-1 on the step the episode ends stuck (no net progress for ``episode.stuck_steps`` waypoints): the failure
+    the tilt guard leaves, which is otherwise charged only by the progress it forgoes."""
+    return -1.0 if ctx.outcome == "stuck" else 0.0
+
+
 def step(ctx: RewardContext) -> float:
     """-1 per waypoint: a time penalty that favours short episodes."""
     return -1.0

@@ -76,6 +76,7 @@ CASES = {
         *LIDAR_MAP,
         "sensor.elevation_map.memory=true",
         "sensor.elevation_map.hazard_radius=0.75",
+        "+reward.terms.stuck={fn: diana_lab.envs.rewards.stuck, weight: 3.0, params: {}}",
     ],
     "hills-map-hazards-no-memory": [
         "world=hills",
@@ -166,6 +167,8 @@ def test_batched_env_matches_the_scalar_env(case: str) -> None:
     assert sum(outcomes.values()) >= 2, f"too few episodes ended to compare resets: {outcomes}"
     if "hazard" in case:  # the stopped-drive channel was exercised: spots marked, and forgotten at resets
         assert max(marked) > 0 and min(marked) < max(marked), f"the channel never changed: {marked}"
+    if case == "yard-guard-map-hazards":  # the stuck term was compared where it pays
+        assert outcomes.get("stuck", 0) >= 1, outcomes
 
 
 def test_batched_env_matches_on_a_dem_with_obstacles(tmp_path) -> None:

@@ -126,3 +126,10 @@ def test_a_term_of_ones_own_is_added_from_the_command_line_and_reported_per_step
 def test_a_malformed_term_is_refused_naming_its_key(term, named):
     with pytest.raises(ConfigError, match=named):
         to_object("reward", {"name": "t", "terms": {"x": term}})
+
+
+@pytest.mark.parametrize(("outcome", "want"), [("stuck", -1.0), ("timeout", 0.0), (None, 0.0), ("tipover", 0.0)])
+def test_stuck_pays_only_on_the_step_an_episode_ends_stuck(outcome, want):
+    from diana_lab.envs.rewards import stuck
+
+    assert stuck(ctx(outcome=outcome)) == want

@@ -62,6 +62,7 @@ BUILT_IN: dict[Callable, Callable[..., np.ndarray]] = {
     R.collision: lambda b: -_flag(b.outcome, "collision").astype(np.float64),
     R.tipover: lambda b: -_flag(b.outcome, "tipover").astype(np.float64),
     R.out_of_bounds: lambda b: -_flag(b.outcome, "out_of_bounds").astype(np.float64),
+    R.stuck: lambda b: -_flag(b.outcome, "stuck").astype(np.float64),
     R.step: lambda b: np.full(len(b.distance), -1.0),
     R.time: lambda b, scale=10.0: -b.duration / scale,
     R.stall: lambda b: -_flag(b.waypoint_outcome, "stuck", "gave_up", "halted").astype(np.float64),
