@@ -9,6 +9,7 @@ run-time objects (env, seed, action noise) keeps the YAML pure data.
 from __future__ import annotations
 
 import dataclasses
+import functools
 from pathlib import Path
 from typing import Any
 
@@ -20,6 +21,7 @@ from stable_baselines3.common.noise import NormalActionNoise
 from stable_baselines3.common.vec_env import VecEnv
 
 from diana_lab.agents.extractors import RoverExtractor
+from diana_lab.agents.overlap import overlapped
 from diana_lab.agents.strips import init_logit_head
 from diana_lab.config.algo import NON_SB3_KEYS, AlgoConfig, check_action_space
 from diana_lab.core.validation import ConfigError
@@ -114,12 +116,17 @@ def _action_noise(cfg: AlgoConfig, n_actions: int) -> NormalActionNoise | None:
     return NormalActionNoise(mean=np.zeros(n_actions), sigma=std * np.ones(n_actions))
 
 
-def algo_class(cfg: AlgoConfig) -> type[BaseAlgorithm]:
-    return get_class(cfg._target_)
+def algo_class(cfg: AlgoConfig, overlap: bool = False) -> type[BaseAlgorithm]:
+    """``cfg``'s class; with ``overlap``, its :func:`~diana_lab.agents.overlap.overlapped` form (``train.overlap``)."""
+    cls = get_class(cfg._target_)
+    return overlapped(cls) if overlap else cls
 
 
-def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", verbose: int = 0) -> BaseAlgorithm:
-    """A fresh model of ``cfg``'s class on ``env`` (each non-runner key of ``cfg`` is a constructor kwarg).
+def build_model(
+    cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", verbose: int = 0, overlap: bool = False
+) -> BaseAlgorithm:
+    """A fresh model of ``cfg``'s class on ``env`` (each non-runner key of ``cfg`` is a constructor kwarg);
+    ``overlap``: one that collects its next rollout during each update (:mod:`diana_lab.agents.overlap`).
 
     A ``Discrete`` env (``action_space=discrete``) with an algorithm that needs a ``Box`` raises
     :class:`~diana_lab.config.ConfigError` naming both, before SB3's constructor asserts on it.
@@ -130,7 +137,8 @@ def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", ve
     cfg = resolve_encoder(cfg, env_cfg)
     node = {k: v for k, v in dataclasses.asdict(cfg).items() if k not in NON_SB3_KEYS}
     node.update({"_target_": cfg._target_, "_partial_": True, "_convert_": "all"})
-    make = instantiate(node)
+    made = instantiate(node)
+    make = functools.partial(algo_class(cfg, overlap), *made.args, **made.keywords)
     extra: dict[str, Any] = {}
     noise = _action_noise(cfg, int(np.prod(env.action_space.shape)))
     if noise is not None:
@@ -143,6 +151,8 @@ def build_model(cfg: AlgoConfig, env: VecEnv, seed: int, device: str = "cpu", ve
     return model
 
 
-def load_model(cfg: AlgoConfig, path: Path, env: VecEnv | None, device: str = "cpu") -> BaseAlgorithm:
+def load_model(
+    cfg: AlgoConfig, path: Path, env: VecEnv | None, device: str = "cpu", overlap: bool = False
+) -> BaseAlgorithm:
     """Load a saved model of ``cfg``'s class (its saved hyperparameters win; the env is re-attached)."""
-    return algo_class(cfg).load(str(path), env=env, device=device)
+    return algo_class(cfg, overlap).load(str(path), env=env, device=device)

@@ -9,8 +9,10 @@ Each ratio is measured side by side in one process, repeats interleaved (hosts h
   ``RoverNavEnv`` of the same groups stepped the same way (one core, as an env is stepped).
 * ``batched_env_steps_per_s_depth``: the same with the 64 x 48 depth camera and ``depth_image``.
 * ``train_fps_ppo``: ``model.learn`` of the main command (the composed config, as the runner builds it, the
-  phase threads included), a rollout and its update per repeat; ``train_fps_speedup`` is that over
-  :data:`ANCHOR`, the main command as it was before the batched env (kept fixed here).
+  phase threads and ``train.overlap`` included), a rollout and its update per repeat (with ``train.overlap``,
+  :data:`OVERLAPPED_UPDATES`, since a ``learn`` call's first rollout is collected before its update);
+  ``train_fps_speedup`` is that over :data:`ANCHOR`, the main command as it was before the batched env (kept
+  fixed here).
 * ``rss_mb_per_rover``: resident memory each rover adds to a batched env, in a fresh process.
 """
 
@@ -121,24 +123,29 @@ def batched_env_steps(ctx: BenchContext) -> list[Figure]:
     ]
 
 
+OVERLAPPED_UPDATES = 4  # per repeat with train.overlap: the first rollout of a learn() call is not overlapped
+
+
 def _learner(cfg: Any, ctx: BenchContext) -> tuple[Any, Any, Any, int]:
-    """The model, its env, its phase-threads callback and the steps of one update, built as the runner does."""
+    """The model, its env, its phase-threads callback and the steps of one repeat (one update; with
+    ``train.overlap``, :data:`OVERLAPPED_UPDATES`), built as the runner does."""
     from diana_lab import config as C
     from diana_lab.agents.factory import build_model
     from diana_lab.training.envs import make_training_env, wrap_normalize
-    from diana_lab.training.threads import PhaseThreads
+    from diana_lab.training.threads import phase_threads, resolved_overlap
 
     typed = C.validate(cfg, [g for g in ("action_space", "algo", "train") if g in cfg])
     algo, train = typed["algo"], typed["train"]
     if ctx.quick:
         algo.n_steps = max(8, algo.n_steps // 4)
         algo.batch_size = min(algo.batch_size, algo.n_steps * train.n_envs)
+    overlap = resolved_overlap(train.overlap, algo.off_policy, algo.name)
     venv = make_training_env(cfg, train, ctx.seed)
     if algo.normalize:
         venv = wrap_normalize(venv, algo, algo.gamma)
-    model = build_model(algo, venv, ctx.seed, train.device)
-    threads = PhaseThreads(train.torch_threads or None, train.update_threads)
-    return model, venv, threads, train.n_envs * algo.n_steps
+    model = build_model(algo, venv, ctx.seed, train.device, overlap=overlap)
+    threads = phase_threads(train.torch_threads, train.update_threads, overlap)
+    return model, venv, threads, train.n_envs * algo.n_steps * (OVERLAPPED_UPDATES if overlap else 1)
 
 
 @measurement("train_fps_ppo", "train_fps_speedup")
@@ -178,9 +185,11 @@ def train_fps(ctx: BenchContext) -> list[Figure]:
             "train_fps_ppo",
             "steps/s",
             rates["main"][timed],
-            batch=f"1 update: {main_steps} steps ({train.n_envs} envs, {train.vec_env}) and its minibatches",
+            batch=f"{main_steps} steps ({train.n_envs} envs, {train.vec_env}) and their updates per repeat",
             note=f"SB3 PPO learn() of the main command's config (sensor {ctx.cfg.sensor.name}, "
-            f"{ctx.cfg.algo.extractor.elevation_encoder} extractor), phase threads as the runner sets them",
+            f"{ctx.cfg.algo.extractor.elevation_encoder} extractor, train.overlap={train.overlap}: with it, "
+            f"{OVERLAPPED_UPDATES} updates a repeat, the first rollout not overlapped), phase threads as the runner "
+            "sets them",
         ),
         figure_from_samples(
             "train_fps_speedup",

@@ -102,6 +102,10 @@ class TrainConfig:
     # torch threads for the gradient updates between rollouts: the envs wait then, so their cores are free
     # (0: every core this process may use); train.torch_threads applies again at the next rollout
     update_threads: int = 0
+    # collect the next rollout in a background thread while the update learns from the current one (PPO, A2C: one
+    # update of lag, the rollout re-centred on the live policy; diana_lab/agents/overlap.py). While overlapping,
+    # train.torch_threads also holds during the updates (train.update_threads is not used)
+    overlap: bool = False
     imitation: ImitationConfig = field(default_factory=ImitationConfig)
 
     def __post_init__(self) -> None:

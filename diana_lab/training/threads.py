@@ -12,7 +12,9 @@ import os
 import torch
 from stable_baselines3.common.callbacks import BaseCallback
 
-__all__ = ["PhaseThreads", "available_cores", "core_ids"]
+from diana_lab.core.validation import ConfigError
+
+__all__ = ["PhaseThreads", "available_cores", "core_ids", "phase_threads", "resolved_overlap"]
 
 
 def core_ids() -> list[int]:
@@ -47,3 +49,23 @@ class PhaseThreads(BaseCallback):
 
     def _on_step(self) -> bool:
         return True
+
+
+def resolved_overlap(overlap: bool, off_policy: bool, algo_name: str) -> bool:
+    """``train.overlap``, refused for an off-policy algorithm (it learns between env steps: there is no rollout
+    to collect during an update)."""
+    if overlap and off_policy:
+        raise ConfigError(
+            f"train.overlap=true: algo={algo_name} is off-policy and learns between env steps, so there is no "
+            "rollout to collect during its update; use an on-policy algorithm (algo=ppo, algo=a2c) or "
+            "train.overlap=false"
+        )
+    return overlap
+
+
+def phase_threads(torch_threads: int, update_threads: int, overlap: bool) -> PhaseThreads:
+    """The runner's :class:`PhaseThreads`: ``train.torch_threads`` while the envs step and ``train.update_threads``
+    during the updates; with ``overlap`` the two run at once, so ``train.torch_threads`` in both (a second
+    OpenMP thread in the update spins against the rollout's thread)."""
+    rollout = torch_threads or None
+    return PhaseThreads(rollout, (torch_threads or None) if overlap else update_threads)

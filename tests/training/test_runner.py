@@ -233,6 +233,31 @@ def test_the_slope_shield_on_continuous_waypoints_exits_2_naming_both_keys(tmp_p
     assert not runs(tmp_path)[1]
 
 
+def test_an_overlapped_run_evaluates_checkpoints_and_resumes_as_a_plain_one(tmp_path):
+    """train.overlap=true: the same evaluation steps, checkpoints and counters as without, and train.resume
+    continues it (the rollouts after the first are collected during the updates, diana_lab/agents/overlap.py)."""
+    args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], "train.total_timesteps=384", "train.overlap=true"]
+    assert run_in_process([*args, *store_args(tmp_path)]) == 0
+    client, (run,) = runs(tmp_path)
+    assert run.info.status == "FINISHED" and run.data.params["train.overlap"] == "True"
+    history = client.get_metric_history(run.info.run_id, "eval_success_rate")
+    assert sorted(m.step for m in history) == [128, 256, 384]
+    checkpoints = sorted(p.name for p in (tmp_path / "run" / "checkpoints").glob("*.zip"))
+    assert checkpoints == ["rl_model_128_steps.zip", "rl_model_256_steps.zip", "rl_model_384_steps.zip"]
+    resumed = [*args[:-2], "train.total_timesteps=640", "train.overlap=true", f"train.resume={tmp_path}/run"]
+    assert run_in_process([*resumed, *store_args(tmp_path, "run2")]) == 0
+    model = get_class(CLASSES["ppo"]).load(tmp_path / "run2" / "model" / "model.zip", device="cpu")
+    assert model.num_timesteps == 640
+
+
+def test_overlapping_an_off_policy_algorithm_exits_2_naming_the_key(tmp_path, capsys):
+    args = ["algo=sac", *TINY, *ALGO_TINY["sac"], "train.overlap=true", *store_args(tmp_path)]
+    assert run_in_process(args) == 2
+    err = capsys.readouterr().err
+    assert "train.overlap=true: algo=sac is off-policy" in err and "Traceback" not in err
+    assert not runs(tmp_path)[1]
+
+
 def test_an_algo_that_cannot_drive_discrete_waypoints_exits_2_naming_both_keys(tmp_path, capsys):
     args = ["algo=sac", *TINY, *ALGO_TINY["sac"], "action_space=discrete", *store_args(tmp_path)]
     assert run_in_process(args) == 2
