@@ -42,7 +42,8 @@ __all__ = ["OverlappedRollouts", "overlapped", "recentre"]
 
 
 class _Rollout:
-    """A rollout collected in the background: the buffer it filled, and each step's record for the callbacks."""
+    """What a background rollout hands over besides its buffer: each step's record for the callbacks, and the
+    error that ended it, if one did."""
 
     def __init__(self) -> None:
         self.steps: list[dict[str, Any]] = []

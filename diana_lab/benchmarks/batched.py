@@ -132,14 +132,15 @@ def _learner(cfg: Any, ctx: BenchContext) -> tuple[Any, Any, Any, int]:
     from diana_lab import config as C
     from diana_lab.agents.factory import build_model
     from diana_lab.training.envs import make_training_env, wrap_normalize
-    from diana_lab.training.threads import phase_threads, resolved_overlap
+    from diana_lab.training.threads import check_overlap, phase_threads
 
     typed = C.validate(cfg, [g for g in ("action_space", "algo", "train") if g in cfg])
     algo, train = typed["algo"], typed["train"]
     if ctx.quick:
         algo.n_steps = max(8, algo.n_steps // 4)
         algo.batch_size = min(algo.batch_size, algo.n_steps * train.n_envs)
-    overlap = resolved_overlap(train.overlap, algo.off_policy, algo.name)
+    check_overlap(train.overlap, algo.off_policy, algo.name)
+    overlap = train.overlap
     venv = make_training_env(cfg, train, ctx.seed)
     if algo.normalize:
         venv = wrap_normalize(venv, algo, algo.gamma)

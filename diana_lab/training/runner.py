@@ -69,7 +69,7 @@ from diana_lab.training.resume import (
 )
 from diana_lab.training.signals import InterruptCheck, interrupts_as_exceptions, unwrapped_interrupts
 from diana_lab.training.summary import TrainResult
-from diana_lab.training.threads import phase_threads, resolved_overlap
+from diana_lab.training.threads import check_overlap, phase_threads
 
 __all__ = ["RUN_GROUPS", "train"]
 
@@ -148,10 +148,8 @@ class TrainingRun:
         typed: dict[str, Any],
         tracker: Tracker,
         resume: ResumePoint | None,
-        overlap: bool = False,
     ) -> None:
         self.cfg, self.ctx, self.tracker, self.resume = cfg, ctx, tracker, resume
-        self.overlap = overlap  # train.overlap, decided (resolved_overlap)
         self.algo: AlgoConfig = typed["algo"]
         self.train_cfg: TrainConfig = typed["train"]
         self.eval_cfg: EvalConfig = typed["eval"]
@@ -209,7 +207,7 @@ class TrainingRun:
             self.venv = make_training_env(self.cfg, self.train_cfg, self.seed, expert=expert)
             if self.algo.normalize:
                 self.venv = wrap_normalize(self.venv, self.algo, self.algo.gamma)
-            self.model = build_model(self.algo, self.venv, self.seed, device, overlap=self.overlap)
+            self.model = build_model(self.algo, self.venv, self.seed, device, overlap=self.train_cfg.overlap)
         else:
             ckpt = self.resume.checkpoint
             done = _resumed_steps(self.resume)
@@ -225,7 +223,7 @@ class TrainingRun:
                         file=sys.stderr,
                     )
                     self.venv = wrap_normalize(self.venv, self.algo, self.algo.gamma)
-            self.model = load_model(self.algo, ckpt.model, self.venv, device, overlap=self.overlap)
+            self.model = load_model(self.algo, ckpt.model, self.venv, device, overlap=self.train_cfg.overlap)
             if ckpt.replay_buffer is not None and hasattr(self.model, "replay_buffer"):
                 self.model.load_replay_buffer(str(ckpt.replay_buffer))
         formats: list[Any] = [MLflowOutputFormat(self.tracker)]
@@ -253,7 +251,7 @@ class TrainingRun:
             on_eval=self.ctx.on_eval,
             final_follows=self.train_cfg.final_eval,
         )
-        threads = phase_threads(self.train_cfg.torch_threads, self.train_cfg.update_threads, self.overlap)
+        threads = phase_threads(self.train_cfg.torch_threads, self.train_cfg.update_threads, self.train_cfg.overlap)
         cbs: list[BaseCallback] = [InterruptCheck(), threads, EpisodeStats(), self.checkpoints, self.evaluator]
         if self.train_cfg.progress_bar:
             self.progress = ProgressWithStats()
@@ -410,8 +408,7 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
             f"eval.sensor_noise={list(typed['eval'].sensor_noise)}: sweeps the final evaluation, which "
             "train.final_eval=false turns off; drop one of them"
         )
-    algo: AlgoConfig = typed["algo"]
-    overlap = resolved_overlap(train_cfg.overlap, algo.off_policy, algo.name)
+    check_overlap(train_cfg.overlap, typed["algo"].off_policy, typed["algo"].name)
     imitation = train_cfg.imitation
     if imitation.enabled and imitation.expert == "astar_seen":  # the expert reads the policy's own sensor map
         check_perceivable(cfg, "train.imitation.expert=astar_seen")
@@ -437,7 +434,7 @@ def train(cfg: DictConfig, ctx: RunContext) -> TrainResult:
                                 resume.run_id if resume else None,
                                 parent_run_id=ctx.parent_run_id,
                             )
-                    run = TrainingRun(cfg, ctx, typed, tracker, resume, overlap)
+                    run = TrainingRun(cfg, ctx, typed, tracker, resume)
                     run.log_run_metadata()
                     run.build()
                     run.learn()

@@ -14,7 +14,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 from diana_lab.core.validation import ConfigError
 
-__all__ = ["PhaseThreads", "available_cores", "core_ids", "phase_threads", "resolved_overlap"]
+__all__ = ["PhaseThreads", "available_cores", "check_overlap", "core_ids", "phase_threads"]
 
 
 def core_ids() -> list[int]:
@@ -51,16 +51,15 @@ class PhaseThreads(BaseCallback):
         return True
 
 
-def resolved_overlap(overlap: bool, off_policy: bool, algo_name: str) -> bool:
-    """``train.overlap``, refused for an off-policy algorithm (it learns between env steps: there is no rollout
-    to collect during an update)."""
+def check_overlap(overlap: bool, off_policy: bool, algo_name: str) -> None:
+    """Refuse ``train.overlap`` for an off-policy algorithm (it learns between env steps: there is no rollout to
+    collect during an update)."""
     if overlap and off_policy:
         raise ConfigError(
             f"train.overlap=true: algo={algo_name} is off-policy and learns between env steps, so there is no "
             "rollout to collect during its update; use an on-policy algorithm (algo=ppo, algo=a2c) or "
             "train.overlap=false"
         )
-    return overlap
 
 
 def phase_threads(torch_threads: int, update_threads: int, overlap: bool) -> PhaseThreads:

@@ -15,7 +15,7 @@ from stable_baselines3.common.utils import set_random_seed
 from diana_lab.agents.factory import build_model
 from diana_lab.agents.overlap import overlapped
 from diana_lab.config import ConfigError, compose, to_object
-from diana_lab.training.threads import resolved_overlap
+from diana_lab.training.threads import check_overlap
 from tests.training.helpers import TINY
 
 from .fake_env import FakeRoverEnv
@@ -190,9 +190,9 @@ def test_a2c_overlaps_too():
 
 
 def test_overlap_is_refused_for_an_off_policy_algorithm_naming_the_key():
-    assert resolved_overlap(True, off_policy=False, algo_name="ppo") is True
-    assert resolved_overlap(False, off_policy=True, algo_name="sac") is False
+    check_overlap(True, off_policy=False, algo_name="ppo")
+    check_overlap(False, off_policy=True, algo_name="sac")
     with pytest.raises(ConfigError, match=r"train.overlap=true: algo=sac is off-policy"):
-        resolved_overlap(True, off_policy=True, algo_name="sac")
+        check_overlap(True, off_policy=True, algo_name="sac")
     with pytest.raises(TypeError, match="not an on-policy algorithm"):
         overlapped(SAC)
