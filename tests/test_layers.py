@@ -43,8 +43,9 @@ LAYERS = {
     "compare": 11,
     "export": 11,
     "bench": 11,
+    "calibrate": 11,
 }
-ENTRY_POINTS = {"cli", "__main__", "evaluate", "sweep", "compare", "export", "bench"}
+ENTRY_POINTS = {"cli", "__main__", "evaluate", "sweep", "compare", "export", "bench", "calibrate"}
 
 
 def unit(module: str) -> str:

@@ -271,9 +271,13 @@ class KinematicConfig(DynamicsConfig):
     _target_: str = "diana_lab.sim.kinematic.KinematicDynamics"
     name: str = "kinematic"
     sample_spacing: float = 0.1  # m between terrain checks along the path
+    # m the rover carries on past the tilt guard's trip while driving: a halt with the tip-over limit passed
+    # within it is a tip-over (0: the guard stops the rover where it trips)
+    guard_overshoot: float = 0.0
 
     def __post_init__(self) -> None:
         positive("dynamics.sample_spacing", self.sample_spacing)
+        non_negative("dynamics.guard_overshoot", self.guard_overshoot)
         positive("dynamics.stuck_window_s", self.stuck_window_s)
 
 

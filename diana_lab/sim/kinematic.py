@@ -18,6 +18,10 @@ samples). The first sample that violates a limit ends the waypoint:
   leaves it waits out the episode. In both modes the guard re-arms during a back-off once the tilt is back
   under it, and stops the back-off where it passes again; a slope too steep to climb backwards stops it too,
   and ``tipover``, ``collision`` or ``out_of_bounds`` end the waypoint as themselves.
+  ``cfg.guard_overshoot`` (metres, 0 by default) calibrates the guard against a body with momentum: a driving
+  rover carries on that far past the trip before it stops, and a tilt over the tip-over limit there (the trip's
+  own sample included) is a ``tipover``. PyBullet's rover, driven to the same waypoints, tips
+  over where the guard trips and the ground steepens just beyond (``python -m diana_lab.calibrate``).
 
 ``stuck`` and ``halted`` report where the wheels met the ground they could not drive (``hazard_xy``; while
 turning in place, half a rover length towards the heading it was turning to).
@@ -221,6 +225,10 @@ class KinematicDynamics:
         flat = int(failed.argmax())
         first, check = divmod(flat, len(FAILURE_CHECKS))
         outcome = FAILURE_CHECKS[check] if failed[first, check] else "reached"
+        if outcome == "halted" and not reverse and first >= m and self.cfg.guard_overshoot > 0:
+            tipped = self._carried_past_guard(tilt, drive_s, first, m)
+            if tipped is not None:
+                outcome, first = "tipover", tipped
         end = first if outcome != "reached" else len(xs) - 1
         if outcome in ("stuck", "halted"):
             end = max(first - 1, 0)  # wheels spin at the foot of the slope / the guard stops the rover before it
@@ -256,6 +264,17 @@ class KinematicDynamics:
         elif outcome in ("stuck", "halted"):  # while turning in place: that way is barred from here, so mark it ahead
             result.hazard_xy = xy[0] + hazard_ahead(robot.length, float(yaws[-1]))
         return result
+
+    def _carried_past_guard(self, tilt: np.ndarray, drive_s: np.ndarray, first: int, m: int) -> int | None:
+        """The drive sample where the rover tips over while carrying on ``cfg.guard_overshoot`` metres past the
+        guard's trip at sample ``first`` (that sample included); ``None`` if it stays under the limit."""
+        reach = drive_s[first - m] + self.cfg.guard_overshoot
+        for j in range(first, len(tilt)):
+            if drive_s[j - m] > reach:
+                break
+            if tilt[j] > self.robot.tipover_deg:
+                return j
+        return None
 
     def _finish(
         self,

@@ -78,6 +78,13 @@ CASES = {
         "sensor.elevation_map.hazard_radius=0.75",
         "+reward.terms.stuck={fn: diana_lab.envs.rewards.stuck, weight: 3.0, params: {}}",
     ],
+    "yard-guard-overshoot": [
+        "world=mars_yard",
+        "robot.tilt_guard_deg=12",
+        "robot.tipover_deg=16",
+        "dynamics.guard_overshoot=0.6",
+        *SMALL_CAMERA,
+    ],
     "hills-map-hazards-no-memory": [
         "world=hills",
         "robot.tilt_guard_deg=6",
@@ -167,6 +174,8 @@ def test_batched_env_matches_the_scalar_env(case: str) -> None:
     assert sum(outcomes.values()) >= 2, f"too few episodes ended to compare resets: {outcomes}"
     if "hazard" in case:  # the stopped-drive channel was exercised: spots marked, and forgotten at resets
         assert max(marked) > 0 and min(marked) < max(marked), f"the channel never changed: {marked}"
+    if case == "yard-guard-overshoot":  # tip-overs past the guard's trip were compared
+        assert outcomes.get("tipover", 0) >= 1, outcomes
     if case == "yard-guard-map-hazards":  # the stuck term was compared where it pays
         assert outcomes.get("stuck", 0) >= 1, outcomes
 

@@ -71,6 +71,8 @@ ROWS = [
     # ---- range checks (exit 2 in about a second, before the training stack is imported)
     Bad("negative-world-size", TRAIN, ("world=flat", "world.size_x=-1"), ("world.size_x", "positive")),
     Bad("zero-cruise-speed", TRAIN, ("robot.cruise_speed=0",), ("robot.cruise_speed", "positive")),
+    Bad("negative-guard-overshoot", TRAIN, ("dynamics.guard_overshoot=-0.1",), ("dynamics.guard_overshoot",)),
+    Bad("calibrate-misspelt-key", "diana_lab.calibrate", ("start=3",), ("start",), 1),
     Bad("negative-turn-speed", TRAIN, ("robot.turn_speed=-1",), ("robot.turn_speed", "positive")),
     Bad(
         "episode-min-above-max",

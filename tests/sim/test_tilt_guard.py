@@ -248,3 +248,27 @@ def test_physics_halt_while_turning_reports_the_way_it_was_turning_to():
         assert math.degrees(math.atan2(ahead[1], ahead[0])) == pytest.approx(90.0, abs=5.0)
     finally:
         dyn.close()
+
+
+@pytest.mark.parametrize("overshoot, outcome", [(0.0, "halted"), (0.3, "halted"), (0.6, "tipover")])
+def test_kinematic_guard_overshoot_tips_where_the_ground_steepens_just_past_the_trip(ramp, overshoot, outcome):
+    """``dynamics.guard_overshoot``: the rover carries on that far past the guard's trip. On the ramp the tilt
+    passes the 30 deg guard about 0.44 m before the 35 deg tip-over limit: 0.3 m stops short of it, 0.6 m not."""
+    rover = robot(tilt_guard_deg=30.0)
+    cfg = to_object("dynamics", {"name": "kinematic", "guard_overshoot": overshoot})
+    dyn, ctl = build(cfg, ramp, rover), TurnThenDrive(cfg.controller, rover)
+    dyn.reset(np.array([-2.0, 0.0]), 0.0)
+    result = dyn.execute(np.array([6.0, 0.0]), ctl)
+    assert result.outcome == outcome
+    tilts = result.trace_tilt_deg
+    if outcome == "tipover":  # it ends at the first sample over the limit, past the guard's trip
+        assert tilts[-1] > rover.tipover_deg and np.all(tilts[:-1] <= rover.tipover_deg)
+        assert np.sum(tilts > 30.0) >= 2 and result.failed and result.hazard_xy is None
+        assert dyn.state.xy[0] == pytest.approx(result.trace_xy[-1, 0])
+    else:
+        assert tilts.max() < rover.tipover_deg and dyn.state.tilt_deg < 30.0
+
+
+def test_guard_overshoot_must_not_be_negative():
+    with pytest.raises(ConfigError, match=r"dynamics\.guard_overshoot"):
+        to_object("dynamics", {"name": "kinematic", "guard_overshoot": -0.1})

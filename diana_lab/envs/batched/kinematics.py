@@ -4,7 +4,8 @@
 ``prange``), with the rules of :class:`~diana_lab.sim.kinematic.KinematicDynamics`: the turn-then-drive path
 sampled every ``sample_spacing`` metres (and every 15 degrees of turning), the pose at every sample from a plane
 fitted to the terrain under the wheels, and the first sample that breaks a limit ends the waypoint (out of
-bounds, the tilt guard's halt, tip-over, a slope too steep to climb, an obstacle). The guard's back-off along
+bounds, the tilt guard's halt, tip-over, a slope too steep to climb, an obstacle; past a guard's trip, the
+``guard_overshoot`` a driving rover carries on). The guard's back-off along
 the drive or straight back, the stuck window and the reported hazard follow the scalar model step for step.
 
 Where the scalar model builds arrays for every sample and then looks for the first failure, this walks the
@@ -69,7 +70,8 @@ C_RES, C_X0, C_Y0 = range(3)  # collision clearance grid
     P_CRUISE_SPEED,
     P_SPACING,
     P_STUCK_WINDOW,
-) = range(15)
+    P_GUARD_OVERSHOOT,
+) = range(16)
 
 
 def trace_capacity(max_distance: float, spacing: float, retreat: float) -> int:
@@ -178,6 +180,27 @@ def _walk(
         if code != R_REACHED:
             first = j
             break
+    if code == R_HALTED and not reverse and first >= m and p[P_GUARD_OVERSHOOT] > 0.0:
+        # carried on past the trip (KinematicDynamics._carried_past_guard): the trip's sample, then further along
+        reach = drive_s[first - m] + p[P_GUARD_OVERSHOOT]
+        for j in range(first, n):
+            if drive_s[j - m] > reach:
+                break
+            if j > first:
+                z, roll, pitch = _pose(hs, t, wx, wy, fit, p[P_BASE_HEIGHT], xs[j], ys[j], yaws[j])
+                row = tr[k0 + j]
+                row[0], row[1], row[2], row[3], row[4], row[5], row[6] = (
+                    xs[j],
+                    ys[j],
+                    _tilt(roll, pitch),
+                    roll,
+                    pitch,
+                    times[j],
+                    z,
+                )
+            if tr[k0 + j, 2] > p[P_TIPOVER_DEG]:
+                code, first = R_TIPOVER, j
+                break
     end = first if code != R_REACHED else n - 1
     if code == R_STUCK or code == R_HALTED:  # noqa: SIM109 (numba compiles comparisons, not tuple searches)
         end = max(first - 1, 0)  # the foot of the slope / the guard stops the rover before it
@@ -347,6 +370,7 @@ class KinematicsArrays:
                 controller.cruise_speed,
                 cfg.sample_spacing,
                 cfg.stuck_window_s,
+                cfg.guard_overshoot,
             ],
             dtype=np.float64,
         )
