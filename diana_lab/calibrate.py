@@ -6,13 +6,18 @@ Scores the kinematic model against PyBullet on the same waypoints from the same 
 
     python -m diana_lab.calibrate                                   # the Mars yard, the main command's rover
     python -m diana_lab.calibrate world=craters starts=200 output=calibration.json
+    python -m diana_lab.calibrate policy=<run id> eval.seed=1002    # the policy's own waypoints, its suite
+
+With a policy, the env groups are the command line's, as for ``python -m diana_lab.evaluate``: repeat the
+overrides the policy was trained with.
 """
 
 from __future__ import annotations
 
 import json
+from typing import Any
 
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig, OmegaConf, open_dict
 
 from diana_lab.cli import hydra_app, output_file
 
@@ -45,12 +50,48 @@ def main(cfg: DictConfig) -> None:
         if start % 50 == 0 or start == setup.starts:
             print(f"{start}/{setup.starts} starts, {waypoints} waypoints", flush=True)
 
-    result = calibrate(setup, world, robot, kinematic, physics, C.to_object("episode", groups["episode"]), progress)
+    if cfg.get("policy") is not None:
+        result = _policy_calibration(cfg, setup, kinematic)
+    else:
+        episode = C.to_object("episode", groups["episode"])
+        result = calibrate(setup, world, robot, kinematic, physics, episode, progress)
     guard = "no guard" if robot.tilt_guard_deg is None else f"guard {robot.tilt_guard_deg:g} deg"
     print(format_report(result, f"{world.name}, {robot.name}, {guard}, tip-over {robot.tipover_deg:g} deg"))
     if path is not None:
         path.write_text(json.dumps(result.to_json(), indent=2))
         print(f"wrote {path}")
+
+
+def hints(loaded: Any, cfg: DictConfig, *groups: str) -> list[str]:
+    from diana_lab.evaluation.compatibility import config_differences
+
+    return config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
+
+
+def _policy_calibration(cfg: DictConfig, setup: Any, kinematic: Any) -> Any:
+    """:func:`~diana_lab.evaluation.calibration.calibrate_policy` on the policy of ``cfg.policy``, in an env of the
+    command line's groups with the ``physics`` key's dynamics."""
+    from diana_lab import config as C
+    from diana_lab.envs.rover_nav import RoverNavEnv
+    from diana_lab.evaluation.calibration import calibrate_policy
+    from diana_lab.evaluation.compatibility import check_action_space, check_observation_space
+    from diana_lab.evaluation.loading import load_policy
+
+    eval_cfg = C.to_object("eval", cfg.eval)
+    loaded = load_policy(cfg.policy, cfg, eval_cfg)
+    groups = OmegaConf.masked_copy(cfg, ["world", "robot", "sensor", "action_space", "reward", "episode"])
+    with open_dict(groups):
+        groups.dynamics = cfg.physics
+    env = RoverNavEnv(config=groups)
+    try:
+        if loaded.model is not None:  # trained on other observations or actions: the keys that differ, as evaluate
+            model, label = loaded.model, loaded.label
+            check_observation_space(model.observation_space, env.observation_space, label, hints(loaded, cfg))
+            check_action_space(model.action_space, env.action_space, label, hints(loaded, cfg, "action_space"))
+        print(f"{loaded.label}: {eval_cfg.episodes} episodes of suite seed {eval_cfg.seed} in physics", flush=True)
+        return calibrate_policy(setup, loaded.policy, env, kinematic, eval_cfg)
+    finally:
+        env.close()
 
 
 if __name__ == "__main__":

@@ -28,7 +28,11 @@ from diana_lab.core.validation import ConfigError
 
 CONF_DIR = Path(__file__).resolve().parents[1] / "conf"  # inside the package: it travels with a wheel
 GROUPS = ("world", "robot", "dynamics", "sensor", "action_space", "reward", "episode")
-POLICY_CONFIGS = ("evaluate", "export")  # the top configs with a policy group (policy=<path> read as a source)
+POLICY_CONFIGS = (
+    "evaluate",
+    "export",
+    "calibrate",
+)  # the top configs with a policy group (policy=<path> read as a source)
 
 __all__ = [
     "CONF_DIR",

@@ -4,6 +4,7 @@ of each ``dynamics.guard_overshoot`` by its tip-overs."""
 import json
 import math
 
+import numpy as np
 import pytest
 
 from diana_lab.core.validation import ConfigError
@@ -41,6 +42,8 @@ def test_the_best_overshoot_has_the_highest_f1_and_the_smallest_on_a_tie():
         score_tipovers(physics, ["tipover", "tipover", "reached"], 0.3),
     ]
     assert Calibration(3, 1, {"tipover": 2, "reached": 1}, scores).best.overshoot == 0.2
+    calm = [score_tipovers(["reached"], ["reached"], o) for o in (0.3, 0.1)]  # no tip-over anywhere: F1 undefined
+    assert Calibration(1, 1, {"reached": 1}, calm).best.overshoot == 0.1
 
 
 @pytest.mark.parametrize(
@@ -91,3 +94,39 @@ def test_calibrate_drives_both_models_and_writes_every_pair(tmp_path, capsys):
 def test_calibrate_refuses_bad_input_naming_the_key(tmp_path, capsys, args, message):
     assert run(tmp_path, "waypoints=1", *args) == 2
     assert message in capsys.readouterr().err
+
+
+def test_with_a_policy_the_waypoints_are_its_own_and_physics_runs_as_in_evaluate(tmp_path):
+    """The kinematic twins drive beside the physics rover without changing its run: the policy's summary is
+    the one ``python -m diana_lab.evaluate ... eval.dynamics=physics`` gives on the same suite."""
+    suite = ["policy=bearing", "eval.episodes=2", "eval.seed=3", "eval.min_distance=6", "eval.max_distance=10"]
+    cal, ev = tmp_path / "cal.json", tmp_path / "eval.json"
+    assert run(tmp_path, *suite, "overshoots=[0.0,0.2]", f"output={cal}") == 0
+    argv = [*suite, "eval.dynamics=physics", "tracking.enabled=false", "eval.plots=false", "eval.video=false"]
+    assert run_in_process("diana_lab.evaluate", [*argv, f"output={ev}", f"hydra.run.dir={tmp_path}/ev"]) == 0
+    got, want = json.loads(cal.read_text()), json.loads(ev.read_text())
+    assert got["starts"] == 2 and got["waypoints"] >= 2
+    for key in ("success_rate", "spl", "tipover_rate", "stuck_rate"):
+        assert got["policy_summary"][key] == pytest.approx(want[key]), key
+    assert all(sum(s["outcomes"].values()) == got["waypoints"] for s in got["scores"])
+
+
+def test_the_twin_records_both_models_and_is_the_physics_model_otherwise(flat_world):
+    from diana_lab.config import build, to_object
+    from diana_lab.evaluation.calibration import KinematicTwin
+    from diana_lab.sim.controller import TurnThenDrive
+    from diana_lab.sim.kinematic import KinematicDynamics
+
+    robot = to_object("robot", "jackal")
+    kin_cfg, phy_cfg = to_object("dynamics", "kinematic"), to_object("dynamics", "physics")
+    physics = build(phy_cfg, flat_world, robot)
+    twin = KinematicTwin(
+        physics, [KinematicDynamics(kin_cfg, flat_world, robot)], TurnThenDrive(kin_cfg.controller, robot)
+    )
+    try:
+        twin.reset(np.array([0.0, 0.0]), 0.0)  # delegated
+        result = twin.execute(np.array([2.0, 0.0]), TurnThenDrive(phy_cfg.controller, robot))
+        assert result.outcome == "reached" and twin.physics_out == ["reached"] and twin.kinematic_out == [["reached"]]
+        assert twin.state.xy[0] == pytest.approx(physics.state.xy[0]) and twin.state.xy[0] > 1.5
+    finally:
+        physics.close()
