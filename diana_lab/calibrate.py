@@ -62,7 +62,7 @@ def main(cfg: DictConfig) -> None:
         print(f"wrote {path}")
 
 
-def hints(loaded: Any, cfg: DictConfig, *groups: str) -> list[str]:
+def _hints(loaded: Any, cfg: DictConfig, *groups: str) -> list[str]:
     from diana_lab.evaluation.compatibility import config_differences
 
     return config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
@@ -86,8 +86,8 @@ def _policy_calibration(cfg: DictConfig, setup: Any, kinematic: Any) -> Any:
     try:
         if loaded.model is not None:  # trained on other observations or actions: the keys that differ, as evaluate
             model, label = loaded.model, loaded.label
-            check_observation_space(model.observation_space, env.observation_space, label, hints(loaded, cfg))
-            check_action_space(model.action_space, env.action_space, label, hints(loaded, cfg, "action_space"))
+            check_observation_space(model.observation_space, env.observation_space, label, _hints(loaded, cfg))
+            check_action_space(model.action_space, env.action_space, label, _hints(loaded, cfg, "action_space"))
         print(f"{loaded.label}: {eval_cfg.episodes} episodes of suite seed {eval_cfg.seed} in physics", flush=True)
         return calibrate_policy(setup, loaded.policy, env, kinematic, eval_cfg)
     finally:
