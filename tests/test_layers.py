@@ -44,8 +44,9 @@ LAYERS = {
     "export": 11,
     "bench": 11,
     "calibrate": 11,
+    "scorecard": 12,  # runs evaluate's run() per suite
 }
-ENTRY_POINTS = {"cli", "__main__", "evaluate", "sweep", "compare", "export", "bench", "calibrate"}
+ENTRY_POINTS = {"cli", "__main__", "evaluate", "sweep", "compare", "export", "bench", "calibrate", "scorecard"}
 
 
 def unit(module: str) -> str:

@@ -32,6 +32,7 @@ POLICY_CONFIGS = (
     "evaluate",
     "export",
     "calibrate",
+    "scorecard",
 )  # the top configs with a policy group (policy=<path> read as a source)
 
 __all__ = [
