@@ -143,8 +143,9 @@ def test_bad_input_stops_before_any_evaluation(tmp_path, capsys, args, message):
 def test_every_entry_runs_the_command_lines_suite_even_behind_a_preset_that_sets_its_own(tmp_path):
     """``+experiment=reference`` sets ``eval.episodes: 50``; in the card the suite stays the command line's."""
     preset = '+entries.preset={overrides: ["policy=straight", "+experiment=reference"]}'  # an entry of one's own
-    args = ["world=flat", "eval.episodes=2", "eval.seed=4", "only.conditions=[yard]", preset]
+    # no eval.episodes on the command line: the card's own (100) must hold for the preset's entry too
+    args = ["world=flat", "eval.seed=4", "eval.min_distance=6", "eval.max_distance=7", "only.conditions=[yard]", preset]
     assert run(tmp_path, *args, "only.entries=[preset,straight]") == 0
     card = json.loads((tmp_path / "run" / "card.json").read_text())
-    assert card["summaries"]["preset"]["yard"]["episodes"] == 2
+    assert card["summaries"]["preset"]["yard"]["episodes"] == card["summaries"]["straight"]["yard"]["episodes"] == 100
     assert card["summaries"]["preset"]["yard"]["success_rate"] == card["summaries"]["straight"]["yard"]["success_rate"]
