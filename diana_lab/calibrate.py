@@ -19,7 +19,7 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf, open_dict
 
-from diana_lab.cli import hydra_app, output_file
+from diana_lab.cli import hydra_app, output_file, task_overrides
 
 __all__ = ["main"]
 
@@ -62,19 +62,13 @@ def main(cfg: DictConfig) -> None:
         print(f"wrote {path}")
 
 
-def _hints(loaded: Any, cfg: DictConfig, *groups: str) -> list[str]:
-    from diana_lab.evaluation.compatibility import config_differences
-
-    return config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
-
-
 def _policy_calibration(cfg: DictConfig, setup: Any, kinematic: Any) -> Any:
     """:func:`~diana_lab.evaluation.calibration.calibrate_policy` on the policy of ``cfg.policy``, in an env of the
     command line's groups with the ``physics`` key's dynamics."""
     from diana_lab import config as C
     from diana_lab.envs.rover_nav import RoverNavEnv
     from diana_lab.evaluation.calibration import calibrate_policy
-    from diana_lab.evaluation.compatibility import check_action_space, check_observation_space
+    from diana_lab.evaluation.compatibility import check_spaces
     from diana_lab.evaluation.loading import load_policy
 
     eval_cfg = C.to_object("eval", cfg.eval)
@@ -84,10 +78,8 @@ def _policy_calibration(cfg: DictConfig, setup: Any, kinematic: Any) -> Any:
         groups.dynamics = cfg.physics
     env = RoverNavEnv(config=groups)
     try:
-        if loaded.model is not None:  # trained on other observations or actions: the keys that differ, as evaluate
-            model, label = loaded.model, loaded.label
-            check_observation_space(model.observation_space, env.observation_space, label, _hints(loaded, cfg))
-            check_action_space(model.action_space, env.action_space, label, _hints(loaded, cfg, "action_space"))
+        if loaded.model is not None:  # trained on other observations or actions: refused as evaluate refuses it
+            check_spaces(loaded, env, cfg, task_overrides())
         print(f"{loaded.label}: {eval_cfg.episodes} episodes of suite seed {eval_cfg.seed} in physics", flush=True)
         return calibrate_policy(setup, loaded.policy, env, kinematic, eval_cfg)
     finally:

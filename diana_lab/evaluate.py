@@ -99,32 +99,6 @@ def env_config(
     return env_cfg
 
 
-def _check_spaces(loaded: Any, env: Any, cfg: DictConfig, overrides: Sequence[str] = ()) -> None:
-    """Refuse a model trained on other observations or actions than ``env``'s, naming the config keys that
-    differ from its training's (and the preset of the shipped policy, when left out), and ending with the
-    training's overrides that ``overrides``, this command line's, lacks (or, not recorded, to repeat them)."""
-    from diana_lab.evaluation.compatibility import (
-        check_action_space,
-        check_observation_space,
-        config_differences,
-        rerun_advice,
-    )
-
-    def hints(*groups: str) -> list[str]:
-        diffs = config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
-        # another group chosen than the shipped policy's (sensor.name: training lidar3d, here ...): no preset
-        if loaded.label == "pretrained" and any(d.split(":", 1)[0].endswith(".name") for d in diffs):
-            return ["add +experiment=reference (the shipped policy's training preset)", *diffs]
-        return diffs
-
-    # the shipped policy's preset is said above; a model without its training config gets the generic hint
-    known = loaded.train_cfg is not None and loaded.label != "pretrained"
-    advice = rerun_advice(loaded.train_overrides, overrides) if known else None
-    model = loaded.model
-    check_observation_space(model.observation_space, env.observation_space, loaded.label, hints(), advice)
-    check_action_space(model.action_space, env.action_space, loaded.label, hints("action_space"), advice)
-
-
 def _table(summaries: dict[str, dict[str, Any]], index: str) -> str:
     from diana_lab.evaluation.core import summary_table
 
@@ -141,6 +115,7 @@ def run(
     trained in another env names the training's overrides missing from them)."""
     from diana_lab.config import to_object
     from diana_lab.envs.rover_nav import RoverNavEnv
+    from diana_lab.evaluation.compatibility import check_spaces
     from diana_lab.evaluation.core import evaluate, sweep_sensor_noise
     from diana_lab.evaluation.loading import load_policy
     from diana_lab.evaluation.metrics import to_json
@@ -169,7 +144,7 @@ def run(
     env = RoverNavEnv(config=env_config(cfg, eval_cfg.dynamics, loaded.train_cfg, dynamics_keys))
     try:
         if loaded.model is not None:
-            _check_spaces(loaded, env, cfg, overrides)
+            check_spaces(loaded, env, cfg, overrides)
         if eval_cfg.sensor_noise:
             levels = sweep_sensor_noise(loaded.policy, env, eval_cfg, out_dir)
             summaries = {f"{level:g}": s for level, s in levels.items()}

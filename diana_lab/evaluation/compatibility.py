@@ -24,6 +24,7 @@ from diana_lab.config import GROUPS, ConfigError
 __all__ = [
     "check_action_space",
     "check_observation_space",
+    "check_spaces",
     "config_differences",
     "flat_keys",
     "recorded_overrides",
@@ -168,6 +169,27 @@ def check_action_space(
             "Evaluate with the action_space the policy was trained with (action_space=..., headings, distances).",
             advice,
         )
+
+
+def check_spaces(loaded: Any, env: Any, cfg: DictConfig, overrides: Sequence[str] = ()) -> None:
+    """Refuse ``loaded`` (a :class:`~diana_lab.evaluation.loading.LoadedPolicy` with a model) when its observations
+    or actions are not ``env``'s, naming the config keys that differ from its training's (and the preset of the
+    shipped policy, when left out), and ending with the training's overrides that ``overrides``, this command
+    line's, lacks (or, not recorded, to repeat them)."""
+
+    def hints(*groups: str) -> list[str]:
+        diffs = config_differences(loaded.train_cfg, cfg, *((groups,) if groups else ()))
+        # another group chosen than the shipped policy's (sensor.name: training lidar3d, here ...): no preset
+        if loaded.label == "pretrained" and any(d.split(":", 1)[0].endswith(".name") for d in diffs):
+            return ["add +experiment=reference (the shipped policy's training preset)", *diffs]
+        return diffs
+
+    # the shipped policy's preset is said above; a model without its training config gets the generic hint
+    known = loaded.train_cfg is not None and loaded.label != "pretrained"
+    advice = rerun_advice(loaded.train_overrides, overrides) if known else None
+    model = loaded.model
+    check_observation_space(model.observation_space, env.observation_space, loaded.label, hints(), advice)
+    check_action_space(model.action_space, env.action_space, loaded.label, hints("action_space"), advice)
 
 
 def _refusal(problem: str, hints: list[str] | None, fallback: str, advice: str | None) -> ConfigError:
