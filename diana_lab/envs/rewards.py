@@ -30,6 +30,8 @@ class RewardContext:
     waypoint: WaypointResult
     outcome: str | None  # episode outcome if the episode ended on this step
     step: int  # steps taken in the episode so far (including this one)
+    path_length: float = 0.0  # metres driven in the episode so far (including this step)
+    start_distance: float = 0.0  # straight-line distance from the episode's start to the goal (m)
 
 
 # --------------------------------------------------------------------------- terms (paper section 5.3)
@@ -62,6 +64,17 @@ def pitch(ctx: RewardContext, deadband_deg: float = 5.0, power: float = 2.0) -> 
 
 def goal(ctx: RewardContext) -> float:
     return 1.0 if ctx.outcome == "success" else 0.0
+
+
+def efficiency(ctx: RewardContext) -> float:
+    """On the step an episode succeeds, the straight line from its start to the goal over the path driven (at
+    most 1); 0 otherwise. Why: progress pays the same for any path to the goal (it adds up to the start
+    distance), so without this term only the step penalty and the discount tell a detour from the direct way;
+    this one pays a successful episode for how short its path was, as SPL scores it (against the straight line
+    rather than the shortest path, which the rover does not know)."""
+    if ctx.outcome != "success" or ctx.path_length <= 0.0:
+        return 0.0
+    return min(ctx.start_distance / ctx.path_length, 1.0)
 
 
 def collision(ctx: RewardContext) -> float:
@@ -103,7 +116,7 @@ def _probe_context() -> RewardContext:
     """An ordinary step (1 m of progress, a reached waypoint, no outcome) to try every term on once."""
     trace = np.zeros((2, 2))
     result = WaypointResult("reached", 3.0, 1.0, trace, np.zeros(2), trace.copy())
-    return RewardContext(10.0, 9.0, 0.1, result, None, 1)
+    return RewardContext(10.0, 9.0, 0.1, result, None, 1, 1.0, 10.0)
 
 
 def _check_term(name: str, path: str, fn: Callable[..., float], params: dict) -> None:

@@ -204,7 +204,10 @@ class RoverNavEnv(gym.Env):
         outcome = self._outcome(result)
         terminated = outcome is not None and outcome not in ("timeout", "stuck")
         truncated = outcome in ("timeout", "stuck")
-        ctx = RewardContext(prev_distance, self._distance, self._heading_error, result, outcome, self._steps)
+        ctx = RewardContext(
+            prev_distance, self._distance, self._heading_error, result, outcome, self._steps, self._path_length,
+            self._start_distance,
+        )  # fmt: skip
         reward, terms = self.rewards(ctx)
         info = self._info(waypoint, result, outcome, terms)
         if self.render_mode == "human":

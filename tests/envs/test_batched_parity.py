@@ -45,6 +45,14 @@ CASES = {
         "episode.max_steps=15",
         *SMALL_CAMERA,
     ],
+    "flat-near-goals-efficiency": [
+        "world=flat",
+        "action_space=discrete",
+        "episode.min_distance=1",
+        "episode.max_distance=3",
+        "+reward.terms.efficiency={fn: diana_lab.envs.rewards.efficiency, weight: 10.0, params: {}}",
+        *SMALL_CAMERA,
+    ],
     "hills-square-map-voxel": ["world=hills", "sensor.encoding=elevation_map", *SMALL_CAMERA],
     "craters-square-world-frame-map": ["world=craters", "action_space.frame=world", *LIDAR_MAP],
     "craters-circle-min-distance": [
@@ -176,6 +184,8 @@ def test_batched_env_matches_the_scalar_env(case: str) -> None:
         assert max(marked) > 0 and min(marked) < max(marked), f"the channel never changed: {marked}"
     if case == "yard-guard-overshoot":  # tip-overs past the guard's trip were compared
         assert outcomes.get("tipover", 0) >= 1, outcomes
+    if case == "flat-near-goals-efficiency":  # the efficiency term was compared where it pays
+        assert outcomes.get("success", 0) >= 2, outcomes
     if case == "yard-guard-map-hazards":  # the stuck term was compared where it pays
         assert outcomes.get("stuck", 0) >= 1, outcomes
 

@@ -133,3 +133,66 @@ def test_stuck_pays_only_on_the_step_an_episode_ends_stuck(outcome, want):
     from diana_lab.envs.rewards import stuck
 
     assert stuck(ctx(outcome=outcome)) == want
+
+
+@pytest.mark.parametrize(
+    ("outcome", "path", "start", "want"),
+    [
+        ("success", 25.0, 20.0, 0.8),  # a path 1.25 times the straight line
+        ("success", 19.6, 20.0, 1.0),  # the goal reached within tolerance before the full straight line: capped
+        ("success", 0.0, 0.3, 0.0),  # started within tolerance: nothing driven, nothing to pay for
+        ("stuck", 25.0, 20.0, 0.0),
+        (None, 25.0, 20.0, 0.0),
+    ],
+)
+def test_efficiency_pays_a_success_for_how_short_its_path_was(outcome, path, start, want):
+    from diana_lab.envs.rewards import efficiency
+
+    c = ctx(outcome=outcome)
+    c = RewardContext(c.prev_distance, c.distance, c.heading_error, c.waypoint, outcome, c.step, path, start)
+    assert efficiency(c) == pytest.approx(want)
+
+
+def test_every_built_in_term_of_the_batched_env_computes_what_the_scalar_term_does():
+    """The batched env's array form of each built-in term against the scalar function, rover by rover, over
+    random steps that cover every outcome (the parity tests' random drives seldom reach a goal)."""
+    from diana_lab.envs.batched.rewards import BUILT_IN, BatchContext
+
+    rng = np.random.default_rng(3)
+    outcomes = np.array(["", "success", "collision", "tipover", "out_of_bounds", "stuck", "timeout"])
+    waypoints = np.array(["reached", "stuck", "gave_up", "halted", "collision", "tipover"])
+    contexts = []
+    for k in range(200):
+        c = ctx(
+            roll_deg=rng.uniform(-30, 30),
+            pitch_deg=rng.uniform(-30, 30),
+            outcome=str(outcomes[k % len(outcomes)]) or None,
+            prev=rng.uniform(0, 30),
+            dist=rng.uniform(0, 30),
+            heading=rng.uniform(-4, 4),
+            wp=str(waypoints[k % len(waypoints)]),
+            duration=rng.uniform(0, 20),
+        )
+        path = 0.0 if k % 11 == 0 else rng.uniform(0.1, 60)
+        step, start = int(rng.integers(1, 60)), rng.uniform(0, 30)
+        contexts.append(
+            RewardContext(c.prev_distance, c.distance, c.heading_error, c.waypoint, c.outcome, step, path, start)
+        )
+    batch = BatchContext(
+        prev_distance=np.array([c.prev_distance for c in contexts]),
+        distance=np.array([c.distance for c in contexts]),
+        heading_error=np.array([c.heading_error for c in contexts]),
+        max_abs_roll=np.array([np.abs(c.waypoint.trace_rp[:, 0]).max() for c in contexts]),
+        max_abs_pitch=np.array([np.abs(c.waypoint.trace_rp[:, 1]).max() for c in contexts]),
+        duration=np.array([c.waypoint.duration for c in contexts]),
+        waypoint_outcome=np.array([c.waypoint.outcome for c in contexts]),
+        outcome=np.array([c.outcome or "" for c in contexts]),
+        step=np.array([c.step for c in contexts]),
+        path_length=np.array([c.path_length for c in contexts]),
+        start_distance=np.array([c.start_distance for c in contexts]),
+        context=contexts.__getitem__,
+    )
+    for fn, array_form in BUILT_IN.items():
+        want = [fn(c) for c in contexts]
+        np.testing.assert_allclose(array_form(batch), want, rtol=1e-12, atol=1e-12, err_msg=fn.__name__)
+        assert len(set(want)) > 1 or fn.__name__ == "step", f"{fn.__name__}: the random steps do not exercise it"

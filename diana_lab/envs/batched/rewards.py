@@ -41,6 +41,8 @@ class BatchContext:
     waypoint_outcome: np.ndarray
     outcome: np.ndarray
     step: np.ndarray
+    path_length: np.ndarray
+    start_distance: np.ndarray
     context: Callable[[int], RewardContext]
 
 
@@ -52,6 +54,12 @@ def _flag(names: np.ndarray, *which: str) -> np.ndarray:
     return np.isin(names, which)
 
 
+def _efficiency(b: BatchContext) -> np.ndarray:
+    paid = _flag(b.outcome, "success") & (b.path_length > 0.0)
+    ratio = np.divide(b.start_distance, b.path_length, out=np.zeros(len(b.distance)), where=paid)
+    return np.where(paid, np.minimum(ratio, 1.0), 0.0)
+
+
 # the array form of each built-in term: (batch context, **params) -> unweighted values
 BUILT_IN: dict[Callable, Callable[..., np.ndarray]] = {
     R.progress: lambda b, scale=1.0: (b.prev_distance - b.distance) / scale,
@@ -59,6 +67,7 @@ BUILT_IN: dict[Callable, Callable[..., np.ndarray]] = {
     R.roll: lambda b, deadband_deg=5.0, power=2.0: _tilt(b.max_abs_roll, deadband_deg, power),
     R.pitch: lambda b, deadband_deg=5.0, power=2.0: _tilt(b.max_abs_pitch, deadband_deg, power),
     R.goal: lambda b: _flag(b.outcome, "success").astype(np.float64),
+    R.efficiency: _efficiency,
     R.collision: lambda b: -_flag(b.outcome, "collision").astype(np.float64),
     R.tipover: lambda b: -_flag(b.outcome, "tipover").astype(np.float64),
     R.out_of_bounds: lambda b: -_flag(b.outcome, "out_of_bounds").astype(np.float64),

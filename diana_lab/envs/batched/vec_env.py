@@ -237,8 +237,8 @@ class BatchedRoverEnv(VecEnv):
         terminated = (outcome != "") & ~truncated
         batch = BatchContext(
             prev_distance, self.distance.copy(), self.heading_error.copy(), stats[:, 2], stats[:, 3],
-            self.duration.copy(), _NAMES[self.code], outcome, self.steps.copy(),
-            lambda k: self._context(k, prev_distance, outcome),
+            self.duration.copy(), _NAMES[self.code], outcome, self.steps.copy(), self.path_length.copy(),
+            self.start_distance.copy(), lambda k: self._context(k, prev_distance, outcome),
         )  # fmt: skip
         reward, terms = self.rewards(batch)
         self.last_reward_terms = terms
@@ -440,6 +440,8 @@ class BatchedRoverEnv(VecEnv):
             result,
             str(outcome[k]) or None,
             int(self.steps[k]),
+            float(self.path_length[k]),
+            float(self.start_distance[k]),
         )
 
     def _reset_rovers(self, rows: np.ndarray) -> None:
