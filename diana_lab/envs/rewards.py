@@ -71,7 +71,7 @@ def efficiency(ctx: RewardContext) -> float:
     most 1); 0 otherwise. Why: progress pays the same for any path to the goal (it adds up to the start
     distance), so without this term only the step penalty and the discount tell a detour from the direct way;
     this one pays a successful episode for how short its path was, as SPL scores it (against the straight line
-    rather than the shortest path, which the rover does not know)."""
+    rather than the shortest path, which would take a search of the map at every reset)."""
     if ctx.outcome != "success" or ctx.path_length <= 0.0:
         return 0.0
     return min(ctx.start_distance / ctx.path_length, 1.0)
