@@ -32,12 +32,13 @@ from diana_lab.benchmarks.envs import DEPTH, FORKSERVER_PRELOAD
 __all__ = ["ANCHOR", "batched_env_steps", "rss_per_rover", "train_fps"]
 
 # the main command before train.vec_env=batched (2026-12): 4 RoverNavEnvs one after another, the 64 x 48 depth
-# camera, the square action space, the CNN and PPO's old settings
+# camera, the square action space, the CNN, PPO's old settings and the reward of the time, which paid for stalls
 ANCHOR = (
     "sensor=depth_camera",
     "sensor.encoding=depth_image",
     "action_space=square",
     "robot.tilt_guard_deg=null",
+    "reward.terms.stall.weight=0.5",
 )
 ANCHOR_ALGO = {"n_steps": 256, "batch_size": 128, "n_epochs": 10, "learning_rate": 3e-4, "net_arch": [64, 64]}
 ANCHOR_TRAIN = {"vec_env": "dummy", "n_envs": 4, "torch_threads": 1, "update_threads": 1}

@@ -191,3 +191,19 @@ def test_the_single_env_figures_run_under_the_main_commands_defaults(tmp_path, k
     result = run(cfg, command="pytest")
     assert result["errors"] == {}
     assert result["figures"][key]["value"] > 0
+
+
+def test_the_training_anchor_is_the_old_main_command_reward_included():
+    """``train_fps_speedup``'s anchor stays the main command as it was before the batched env: its sensor and
+    actions, no tilt guard, and the reward of the time, which paid 0.5 for a stall that today's does not."""
+    from diana_lab.benchmarks.batched import ANCHOR
+
+    ctx = BenchContext(compose([], config_name="bench"))
+    today, anchor = ctx.env_groups(), ctx.env_groups(*ANCHOR)
+    assert today["reward"]["terms"]["stall"]["weight"] == 0.0
+    assert anchor["reward"]["terms"]["stall"]["weight"] == 0.5
+    assert anchor["sensor"]["encoding"] == "depth_image" and anchor["action_space"]["shape"] == "square"
+    assert anchor["robot"]["tilt_guard_deg"] is None
+    assert {k: v for k, v in anchor["reward"]["terms"].items() if k != "stall"} == {
+        k: v for k, v in today["reward"]["terms"].items() if k != "stall"
+    }
