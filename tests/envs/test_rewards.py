@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import numpy as np
@@ -148,9 +149,9 @@ def test_stuck_pays_only_on_the_step_an_episode_ends_stuck(outcome, want):
 def test_efficiency_pays_a_success_for_how_short_its_path_was(outcome, path, start, want):
     from diana_lab.envs.rewards import efficiency
 
-    c = ctx(outcome=outcome)
-    c = RewardContext(c.prev_distance, c.distance, c.heading_error, c.waypoint, outcome, c.step, path, start)
-    assert efficiency(c) == pytest.approx(want)
+    assert efficiency(dataclasses.replace(ctx(outcome=outcome), path_length=path, start_distance=start)) == (
+        pytest.approx(want)
+    )
 
 
 def test_every_built_in_term_of_the_batched_env_computes_what_the_scalar_term_does():
@@ -175,9 +176,7 @@ def test_every_built_in_term_of_the_batched_env_computes_what_the_scalar_term_do
         )
         path = 0.0 if k % 11 == 0 else rng.uniform(0.1, 60)
         step, start = int(rng.integers(1, 60)), rng.uniform(0, 30)
-        contexts.append(
-            RewardContext(c.prev_distance, c.distance, c.heading_error, c.waypoint, c.outcome, step, path, start)
-        )
+        contexts.append(dataclasses.replace(c, step=step, path_length=path, start_distance=start))
     batch = BatchContext(
         prev_distance=np.array([c.prev_distance for c in contexts]),
         distance=np.array([c.distance for c in contexts]),

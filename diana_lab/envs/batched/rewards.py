@@ -56,8 +56,7 @@ def _flag(names: np.ndarray, *which: str) -> np.ndarray:
 
 def _efficiency(b: BatchContext) -> np.ndarray:
     paid = _flag(b.outcome, "success") & (b.path_length > 0.0)
-    ratio = np.divide(b.start_distance, b.path_length, out=np.zeros(len(b.distance)), where=paid)
-    return np.where(paid, np.minimum(ratio, 1.0), 0.0)
+    return np.minimum(np.divide(b.start_distance, b.path_length, out=np.zeros(len(b.distance)), where=paid), 1.0)
 
 
 # the array form of each built-in term: (batch context, **params) -> unweighted values
