@@ -18,6 +18,7 @@ from gymnasium import spaces
 from hydra.utils import get_class, instantiate
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.noise import NormalActionNoise
+from stable_baselines3.common.utils import LinearSchedule
 from stable_baselines3.common.vec_env import VecEnv
 
 from diana_lab.agents.extractors import RoverExtractor
@@ -140,6 +141,8 @@ def build_model(
     made = instantiate(node)
     make = functools.partial(algo_class(cfg, overlap), *made.args, **made.keywords)
     extra: dict[str, Any] = {}
+    if cfg.learning_rate_end is not None:
+        extra["learning_rate"] = LinearSchedule(cfg.learning_rate, cfg.learning_rate_end, end_fraction=1.0)
     noise = _action_noise(cfg, int(np.prod(env.action_space.shape)))
     if noise is not None:
         extra["action_noise"] = noise

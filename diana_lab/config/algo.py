@@ -38,6 +38,7 @@ NON_SB3_KEYS = frozenset(
         "extractor",
         "policy_kwargs",
         "action_noise_std",
+        "learning_rate_end",
     }
 )
 
@@ -117,6 +118,9 @@ class AlgoConfig:
     name: str = MISSING
     policy: str = "MultiInputPolicy"
     learning_rate: float = 3e-4
+    # null: a constant rate; a number: the rate falls linearly from learning_rate to it over
+    # train.total_timesteps (SB3's LinearSchedule), so the last updates move the policy less
+    learning_rate_end: float | None = None
     gamma: float = 0.99
     net_arch: list[int] = field(default_factory=lambda: [64, 64])
     normalize: bool = False  # VecNormalize (saved as vecnormalize.pkl next to every model)
@@ -127,6 +131,8 @@ class AlgoConfig:
 
     def __post_init__(self) -> None:
         positive("algo.learning_rate", self.learning_rate)
+        if self.learning_rate_end is not None:
+            non_negative("algo.learning_rate_end", self.learning_rate_end)
         in_range("algo.gamma", self.gamma, 0.0, 1.0)
         _layers("algo.net_arch", self.net_arch)
         encoder = self.extractor.elevation_encoder

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.env_util import make_vec_env
 
 from diana_lab.agents.extractors import RoverExtractor
@@ -9,6 +10,25 @@ from diana_lab.agents.factory import build_model
 from diana_lab.config import ConfigError, compose, to_object
 
 from .fake_env import FakeRoverEnv
+
+
+def optimizer(model):
+    """PPO's one optimiser, or SAC's actor's (its critic's follows the same schedule)."""
+    return model.actor.optimizer if hasattr(model, "actor") else model.policy.optimizer
+
+
+class LogRate(BaseCallback):
+    """The optimiser's learning rate at every rollout's start (after the last update set it)."""
+
+    def __init__(self, rates: list[float]) -> None:
+        super().__init__()
+        self.rates = rates
+
+    def _on_rollout_start(self) -> None:
+        self.rates.append(optimizer(self.model).param_groups[0]["lr"])
+
+    def _on_step(self) -> bool:
+        return True
 
 ALGOS = {"ppo": "PPO", "a2c": "A2C", "sac": "SAC", "td3": "TD3", "ddpg": "DDPG", "tqc": "TQC"}
 
@@ -51,6 +71,25 @@ def test_tiny_ppo_learns_on_fake_env():
     assert model.num_timesteps == 64
 
 
+@pytest.mark.parametrize("name", ["ppo", "sac"])
+def test_learning_rate_end_anneals_the_rate_and_survives_a_save(name, tmp_path):
+    tiny = ["algo.n_steps=8", "algo.batch_size=16", "algo.n_epochs=1"]
+    if name == "sac":
+        tiny = ["algo.learning_starts=0", "algo.batch_size=16", "algo.buffer_size=200"]
+    env = make_vec_env(lambda: FakeRoverEnv("depth_image"), n_envs=2, seed=0)
+    rates: list[float] = []
+    model = build_model(algo_cfg(name, *tiny, "algo.learning_rate=0.001", "algo.learning_rate_end=0.0002"), env, seed=0)
+    model.learn(32, callback=LogRate(rates))
+    assert rates[0] == pytest.approx(1e-3) and rates[-1] < rates[0] and rates[-1] >= 2e-4
+    assert model.lr_schedule(0.0) == pytest.approx(2e-4) and model.lr_schedule(0.5) == pytest.approx(6e-4)
+    model.save(tmp_path / "m.zip")
+    loaded = type(model).load(tmp_path / "m.zip", env=env)
+    assert loaded.lr_schedule(0.5) == pytest.approx(6e-4)  # train.resume goes on down the same line
+    constant = build_model(algo_cfg(name, *tiny, "algo.learning_rate=0.001"), env, seed=0)
+    constant.learn(32)
+    assert optimizer(constant).param_groups[0]["lr"] == pytest.approx(1e-3)
+
+
 @pytest.mark.parametrize("name", ["ppo", "a2c"])
 def test_on_policy_algos_build_a_categorical_policy_for_discrete_waypoints(name):
     env = make_vec_env(lambda: FakeRoverEnv("depth_image", candidates=48), n_envs=2, seed=0)
@@ -88,6 +127,7 @@ def test_gaussian_policy_kwargs_are_refused_for_discrete_waypoints():
     ("override", "key"),
     [
         ("algo.learning_rate=-1", "algo.learning_rate"),
+        ("algo.learning_rate_end=-0.0001", "algo.learning_rate_end"),
         ("algo.net_arch=[64,0]", "algo.net_arch[1]"),
         ("algo.extractor.elevation_encoder=gru", "algo.extractor.elevation_encoder"),
         ("algo.n_steps=0", "algo.n_steps"),
