@@ -30,6 +30,7 @@ class LogRate(BaseCallback):
     def _on_step(self) -> bool:
         return True
 
+
 ALGOS = {"ppo": "PPO", "a2c": "A2C", "sac": "SAC", "td3": "TD3", "ddpg": "DDPG", "tqc": "TQC"}
 
 
