@@ -3,7 +3,9 @@
 Runs form one group when they chose the same options of the ``group_by`` groups (their tags) and -- with
 ``variants`` -- also agree on every other config value except the seed and bookkeeping (``params.*``; e.g.
 two PPO runs with different ``algo.learning_rate`` are two groups, labelled by the values that differ).
-That is the "differ only in ``seed``" rule without the user listing every key a sweep may have changed.
+That is the "differ only in ``seed``" rule without the user listing every key a sweep may have changed. A key
+a run never logged counts as a null one, so runs from before a new opt-in key (null by default) group with
+those after it.
 Group labels name only what differs between the groups of the selection, so plots stay readable.
 """
 
@@ -68,7 +70,9 @@ def _variant_labels(block: pd.DataFrame, columns: list[str]) -> pd.Series:
 
     A label names at most ``MAX_LABEL_ITEMS`` values, each cut to ``MAX_VALUE_CHARS``; configs that differ only
     beyond that are labelled again by the values that tell *them* apart, and numbered if even those do not."""
-    values = block[columns].fillna("").astype(str)
+    # a key a run did not log (it predates the key) and one logged as null are the same: no value, so a new opt-in
+    # key whose default is null does not split the runs made before it from those made after
+    values = block[columns].fillna("").astype(str).replace("None", "")
     varying = [c for c in columns if values[c].nunique() > 1]
     if not varying:
         return pd.Series([""] * len(block), index=block.index, dtype=object)

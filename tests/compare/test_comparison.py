@@ -175,6 +175,23 @@ def test_configs_that_differ_beyond_the_label_are_never_one_group():
     assert "d=2" in g.loc[3, "group"] and "e=2" in g.loc[4, "group"]
 
 
+def test_a_key_a_run_never_logged_counts_as_null():
+    """Runs made before an opt-in key existed lack its param; those made after log its default, None. They are
+    one config; a run that set the key is another."""
+    runs = pd.DataFrame(
+        {
+            "run_id": ["old", "new", "set"],
+            "tags.algo": "ppo",
+            "tags.seed": ["0", "1", "2"],
+            "params.algo.learning_rate": "0.0005",
+            "params.algo.learning_rate_end": [np.nan, "None", "0.0"],
+        }
+    )
+    g = assign_groups(runs, ("algo",))
+    assert g.loc[0, "group"] == g.loc[1, "group"] != g.loc[2, "group"]
+    assert "learning_rate_end=0.0" in g.loc[2, "group"]
+
+
 def test_with_many_groups_the_bar_legend_covers_no_bar(tmp_path):
     from diana_lab.comparison.plots import plot_final_metrics, save_figure
 
