@@ -32,12 +32,30 @@ class RewardContext:
     step: int  # steps taken in the episode so far (including this one)
     path_length: float = 0.0  # metres driven in the episode so far (including this step)
     start_distance: float = 0.0  # straight-line distance from the episode's start to the goal (m)
+    # the way to the goal the rover can drive (m; the planner's cost map), before and after the step: computed
+    # only when a term reads it (its function has ``goal_field = True``), NaN otherwise
+    prev_path_to_goal: float = math.nan
+    path_to_goal: float = math.nan
 
 
 # --------------------------------------------------------------------------- terms (paper section 5.3)
 def progress(ctx: RewardContext, scale: float = 1.0) -> float:
     """Metres gained towards the goal in this step (negative when moving away)."""
     return (ctx.prev_distance - ctx.distance) / scale
+
+
+def path_progress(ctx: RewardContext, scale: float = 1.0, stride: int = 2, untraversable_cost: float = 10.0) -> float:
+    """Metres gained towards the goal along the way the rover can drive (negative when moving away), from the
+    true position: ``progress`` measured as Habitat's PointNav reward measures it, by the geodesic distance.
+    Why: on the straight line a drive into a dead end pays as well as one round it; along the drivable way only
+    the drive round it pays. The env computes the distance field once per episode on the planner's cost map,
+    coarsened by ``stride`` cells, a metre across an untraversable cell costing ``untraversable_cost``
+    (:class:`~diana_lab.planning.goal_distance.GoalDistance`); training-time knowledge only, nothing the
+    policy observes."""
+    return (ctx.prev_path_to_goal - ctx.path_to_goal) / scale
+
+
+path_progress.goal_field = True  # type: ignore[attr-defined]  # the env computes ctx.path_to_goal for it
 
 
 def heading(ctx: RewardContext) -> float:
@@ -116,7 +134,7 @@ def _probe_context() -> RewardContext:
     """An ordinary step (1 m of progress, a reached waypoint, no outcome) to try every term on once."""
     trace = np.zeros((2, 2))
     result = WaypointResult("reached", 3.0, 1.0, trace, np.zeros(2), trace.copy())
-    return RewardContext(10.0, 9.0, 0.1, result, None, 1, 1.0, 10.0)
+    return RewardContext(10.0, 9.0, 0.1, result, None, 1, 1.0, 10.0, 11.0, 10.0)
 
 
 def _check_term(name: str, path: str, fn: Callable[..., float], params: dict) -> None:
@@ -156,6 +174,35 @@ class RewardManager:
                 )
             _check_term(name, term.fn, fn, params)
             self.terms.append((name, fn, float(term.weight), params))
+        self.goal_field = self._goal_field()
+
+    def _goal_field(self) -> tuple[int, float] | None:
+        """``(stride, untraversable_cost)`` of the goal-distance field the weighted terms read (``None``: no
+        term reads it, and the env computes none). Every term reading it must ask for the same field."""
+        wanted: dict[tuple[int, float], str] = {}
+        for name, fn, weight, params in self.terms:
+            if not weight or not getattr(fn, "goal_field", False):
+                continue
+            signature = inspect.signature(fn).parameters
+            stride, cost = (
+                params[key] if key in params else signature[key].default if key in signature else default
+                for key, default in (("stride", 2), ("untraversable_cost", 10.0))
+            )
+            if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
+                raise ConfigError(
+                    f"reward.terms.{name}.params.stride: expected a whole number of cells >= 1, got {stride!r}"
+                )
+            if isinstance(cost, bool) or not isinstance(cost, int | float) or not math.isfinite(cost) or cost < 1.0:
+                raise ConfigError(
+                    f"reward.terms.{name}.params.untraversable_cost: expected a finite number >= 1, got {cost!r}"
+                )
+            wanted[(int(stride), float(cost))] = name
+        if len(wanted) > 1:
+            raise ConfigError(
+                f"reward.terms.{', reward.terms.'.join(wanted.values())}: they read goal-distance fields of different "
+                "params (stride, untraversable_cost); expected one field for every term"
+            )
+        return next(iter(wanted), None)
 
     def __call__(self, ctx: RewardContext) -> tuple[float, dict[str, float]]:
         values = {name: weight * float(fn(ctx, **params)) if weight else 0.0 for name, fn, weight, params in self.terms}

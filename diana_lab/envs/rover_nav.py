@@ -25,6 +25,7 @@ from diana_lab import config as C
 from diana_lab.envs.action_spaces import WaypointMapping
 from diana_lab.envs.episodes import Episode, EpisodeSampler
 from diana_lab.envs.rewards import RewardContext, RewardManager
+from diana_lab.planning.goal_distance import GoalDistance
 from diana_lab.sim.controller import TurnThenDrive, wrap_angle
 from diana_lab.sim.pose import PoseEstimate, PoseService
 from diana_lab.sim.state import WaypointResult
@@ -91,6 +92,10 @@ class RoverNavEnv(gym.Env):
         self.rewards = RewardManager(cfgs["reward"])
         self.episode_cfg = cfgs["episode"]
         self.sampler = EpisodeSampler(self.episode_cfg, self.world, self.robot)
+        field = self.rewards.goal_field  # (stride, untraversable_cost) when a reward term reads the path to the goal
+        self.goal_distance = GoalDistance(self.sampler.costmap, *field) if field is not None else None
+        self._goal_field: np.ndarray | None = None
+        self._path_to_goal = math.nan
         self.render_mode = render_mode
         self._renderer = None
 
@@ -180,12 +185,15 @@ class RoverNavEnv(gym.Env):
         self._trail = [self.dynamics.state.xy[None].copy()]  # (K, 2) pieces, joined by the trail property
         obs = self._observe()
         self._start_distance = self._distance
+        if self.goal_distance is not None:
+            self._goal_field = self.goal_distance.field(ep.goal, out=self._goal_field)
+            self._path_to_goal = self.goal_distance.at(self._goal_field, *self.dynamics.state.xy)
         return obs, self._info(None, None, None, {})
 
     def step(self, action: Any) -> tuple[dict, float, bool, bool, dict]:
         if self._episode is None:
             raise RuntimeError("step() called before reset()")
-        est, prev_distance = self._estimate, self._distance
+        est, prev_distance, prev_path = self._estimate, self._distance, self._path_to_goal
         waypoint = self._clamp(est.xy + self.mapping.offset(action, est.yaw))
         self.controller.start()
         result = self.dynamics.execute(waypoint, self.controller, self.pose_service.xy_yaw)
@@ -204,9 +212,11 @@ class RoverNavEnv(gym.Env):
         outcome = self._outcome(result)
         terminated = outcome is not None and outcome not in ("timeout", "stuck")
         truncated = outcome in ("timeout", "stuck")
+        if self.goal_distance is not None:
+            self._path_to_goal = self.goal_distance.at(self._goal_field, *self.dynamics.state.xy)
         ctx = RewardContext(
             prev_distance, self._distance, self._heading_error, result, outcome, self._steps, self._path_length,
-            self._start_distance,
+            self._start_distance, prev_path, self._path_to_goal,
         )  # fmt: skip
         reward, terms = self.rewards(ctx)
         info = self._info(waypoint, result, outcome, terms)

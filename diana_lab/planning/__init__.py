@@ -5,6 +5,7 @@ Used by the episode sampler (start and goal in one connected component, so a pat
 """
 
 from diana_lab.planning.costmap import CostMap, CostMapConfig, build_costmap, shared_costmap
+from diana_lab.planning.goal_distance import GoalDistance
 from diana_lab.planning.hazards import HazardLayers, terrain_hazards
 from diana_lab.planning.paths import (
     Path,
@@ -19,6 +20,7 @@ from diana_lab.planning.paths import (
 __all__ = [
     "CostMap",
     "CostMapConfig",
+    "GoalDistance",
     "HazardLayers",
     "Path",
     "WaypointChoice",

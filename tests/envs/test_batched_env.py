@@ -88,6 +88,28 @@ def test_rovers_split_across_worlds() -> None:
     assert abs(env.state[1, 2] - env.robot.base_height) > 1e-3
 
 
+def test_each_world_prices_its_rovers_path_to_the_goal_on_its_own_map() -> None:
+    """``path_progress`` with the rovers split across two worlds: each rover's field is built on its own world's
+    cost map, and its term is the change of that field's distance, rover by rover."""
+    term = "+reward.terms.way={fn: diana_lab.envs.rewards.path_progress, weight: 1.0, params: {}}"
+    groups = env_config(C.compose([*SMALL, term]))
+    craters = env_config(C.compose(["world=craters"]))["world"]
+    env = make([*SMALL, term], n=4, worlds=[groups["world"], craters])
+    env.seed(0)
+    env.reset()
+    for part in env.parts:
+        gd = part.goal_distance
+        for i in part.rows:
+            want = gd.at(gd.field(env.goal[i]), *env.state[i, :2])
+            assert env.path_to_goal[i] == pytest.approx(want)
+    before = env.path_to_goal.copy()
+    env.step(np.zeros((4, 2), dtype=np.float32))
+    way = env.reward_names.index("way")
+    np.testing.assert_allclose(env.last_reward_terms[:, way], before - env.path_to_goal)
+    flat, rough = (part.goal_distance.cost for part in env.parts)
+    assert flat.shape != rough.shape or flat.mean() < rough.mean()  # two maps, not one map twice
+
+
 @pytest.mark.parametrize(
     ("overrides", "key"),
     [

@@ -53,6 +53,13 @@ CASES = {
         "+reward.terms.efficiency={fn: diana_lab.envs.rewards.efficiency, weight: 10.0, params: {}}",
         *SMALL_CAMERA,
     ],
+    "yard-discrete-path-progress": [
+        "world=mars_yard",
+        "action_space=discrete",
+        "reward.terms.progress.weight=0",
+        "+reward.terms.path={fn: diana_lab.envs.rewards.path_progress, weight: 1.0, params: {stride: 3}}",
+        *SMALL_CAMERA,
+    ],
     "hills-square-map-voxel": ["world=hills", "sensor.encoding=elevation_map", *SMALL_CAMERA],
     "craters-square-world-frame-map": ["world=craters", "action_space.frame=world", *LIDAR_MAP],
     "craters-circle-min-distance": [
@@ -145,6 +152,7 @@ def drive_both(overrides: list[str], steps: int, seed: int = 7, marked: list[flo
         for t in range(steps):
             actions = _actions(batched, rng)
             obs, rewards, dones, infos = batched.step(actions)
+            assert np.all(np.isfinite(batched.last_reward_terms)), f"step {t}: a reward term is not finite"
             if marked is not None and obs[key].ndim == 4 and obs[key].shape[1] == 3:
                 marked.append(float(obs[key][:, 2].mean()))
             for i, env in enumerate(scalar):
@@ -186,6 +194,8 @@ def test_batched_env_matches_the_scalar_env(case: str) -> None:
         assert outcomes.get("tipover", 0) >= 1, outcomes
     if case == "flat-near-goals-efficiency":  # the efficiency term was compared where it pays
         assert outcomes.get("success", 0) >= 2, outcomes
+    if case == "yard-discrete-path-progress":  # the field was rebuilt at the resets compared
+        assert sum(outcomes.values()) >= 3, outcomes
     if case == "yard-guard-map-hazards":  # the stuck term was compared where it pays
         assert outcomes.get("stuck", 0) >= 1, outcomes
 

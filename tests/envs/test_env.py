@@ -318,3 +318,28 @@ def test_flat_world_map_is_not_blank(flat_world):
 
     image = hillshade(flat_world)
     assert image.mean() > 60  # a visible mid tone, not black
+
+
+def test_path_progress_adds_up_to_the_drivable_way_from_start_to_end(mars_yard):
+    """The ``path_progress`` term telescopes: an episode's sum is the goal-distance field at the start minus at
+    the rover's last true position; an env whose reward does not read the field builds none."""
+    from diana_lab.config import compose
+
+    term = "+reward.terms.way={fn: diana_lab.envs.rewards.path_progress, weight: 1.0, params: {}}"
+    cfg = compose(["world=mars_yard", "sensor=depth_camera", "sensor.width=24", "sensor.height=18", term])
+    env = RoverNavEnv(config=cfg, world_instance=mars_yard)
+    assert env.goal_distance is not None
+    assert RoverNavEnv(world="mars_yard", world_instance=mars_yard).goal_distance is None
+    for seed in range(3):
+        _, info = env.reset(seed=seed)
+        field = env.goal_distance.field(info["goal"])
+        at_start = env.goal_distance.at(field, *info["start"])
+        assert at_start >= 0.9 * info["start_distance"]  # never much under the straight line (the grid's corners)
+        total, done = 0.0, False
+        while not done:
+            _, _, terminated, truncated, info = env.step(goal_seeking_action(env))
+            total += info["reward_terms"]["way"]
+            done = terminated or truncated
+        at_end = env.goal_distance.at(field, *info["position"][:2])
+        assert total == pytest.approx(at_start - at_end, abs=1e-9)
+        assert total != 0.0

@@ -1,5 +1,6 @@
 import dataclasses
 import math
+import re
 
 import numpy as np
 import pytest
@@ -176,7 +177,12 @@ def test_every_built_in_term_of_the_batched_env_computes_what_the_scalar_term_do
         )
         path = 0.0 if k % 11 == 0 else rng.uniform(0.1, 60)
         step, start = int(rng.integers(1, 60)), rng.uniform(0, 30)
-        contexts.append(dataclasses.replace(c, step=step, path_length=path, start_distance=start))
+        way = rng.uniform(0, 40, size=2)
+        contexts.append(
+            dataclasses.replace(
+                c, step=step, path_length=path, start_distance=start, prev_path_to_goal=way[0], path_to_goal=way[1]
+            )
+        )
     batch = BatchContext(
         prev_distance=np.array([c.prev_distance for c in contexts]),
         distance=np.array([c.distance for c in contexts]),
@@ -190,8 +196,61 @@ def test_every_built_in_term_of_the_batched_env_computes_what_the_scalar_term_do
         path_length=np.array([c.path_length for c in contexts]),
         start_distance=np.array([c.start_distance for c in contexts]),
         context=contexts.__getitem__,
+        prev_path_to_goal=np.array([c.prev_path_to_goal for c in contexts]),
+        path_to_goal=np.array([c.path_to_goal for c in contexts]),
     )
     for fn, array_form in BUILT_IN.items():
         want = [fn(c) for c in contexts]
         np.testing.assert_allclose(array_form(batch), want, rtol=1e-12, atol=1e-12, err_msg=fn.__name__)
         assert len(set(want)) > 1 or fn.__name__ == "step", f"{fn.__name__}: the random steps do not exercise it"
+
+
+def _path_term(params: str = "{}", weight: float = 1.0) -> list[str]:
+    return [f"+reward.terms.way={{fn: diana_lab.envs.rewards.path_progress, weight: {weight}, params: {params}}}"]
+
+
+def _manager(overrides: list[str]) -> RewardManager:
+    from diana_lab.config import compose
+
+    return RewardManager(to_object("reward", compose(overrides)["reward"]))
+
+
+def test_path_progress_pays_the_metres_gained_along_the_drivable_way():
+    from diana_lab.envs.rewards import path_progress
+
+    c = dataclasses.replace(ctx(prev=10.0, dist=8.0), prev_path_to_goal=14.0, path_to_goal=11.5)
+    assert path_progress(c) == pytest.approx(2.5)  # not the straight line's 2.0
+    assert path_progress(c, scale=2.0) == pytest.approx(1.25)
+    back = dataclasses.replace(c, prev_path_to_goal=11.5, path_to_goal=14.0)
+    assert path_progress(back) == pytest.approx(-2.5)
+
+
+def test_the_goal_distance_field_is_asked_for_only_by_a_weighted_term_that_reads_it():
+    assert RewardManager(to_object("reward", "default")).goal_field is None
+    assert _manager(_path_term()).goal_field == (2, 10.0)
+    wanted = _manager(_path_term("{stride: 3, untraversable_cost: 4}"))
+    assert wanted.goal_field == (3, 4.0)
+    assert _manager(_path_term(weight=0.0)).goal_field is None
+
+
+@pytest.mark.parametrize(
+    ("params", "key"),
+    [
+        ("{stride: 0}", "reward.terms.way.params.stride"),
+        ("{stride: 1.5}", "reward.terms.way.params.stride"),
+        ("{untraversable_cost: 0.5}", "reward.terms.way.params.untraversable_cost"),
+        ("{untraversable_cost: .inf}", "reward.terms.way.params.untraversable_cost"),
+    ],
+)
+def test_a_bad_goal_distance_field_is_named(params, key):
+    with pytest.raises(ConfigError, match=re.escape(key)):
+        _manager(_path_term(params))
+
+
+def test_two_terms_reading_different_fields_are_refused():
+    both = [
+        *_path_term("{stride: 2}"),
+        "+reward.terms.way2={fn: diana_lab.envs.rewards.path_progress, weight: 1.0, params: {stride: 3}}",
+    ]
+    with pytest.raises(ConfigError, match="different"):
+        _manager(both)

@@ -44,6 +44,8 @@ class BatchContext:
     path_length: np.ndarray
     start_distance: np.ndarray
     context: Callable[[int], RewardContext]
+    prev_path_to_goal: np.ndarray | None = None  # NaN-filled arrays when no term reads the path to the goal
+    path_to_goal: np.ndarray | None = None
 
 
 def _tilt(max_abs: np.ndarray, deadband_deg: float = 5.0, power: float = 2.0) -> np.ndarray:
@@ -62,6 +64,9 @@ def _efficiency(b: BatchContext) -> np.ndarray:
 # the array form of each built-in term: (batch context, **params) -> unweighted values
 BUILT_IN: dict[Callable, Callable[..., np.ndarray]] = {
     R.progress: lambda b, scale=1.0: (b.prev_distance - b.distance) / scale,
+    R.path_progress: lambda b, scale=1.0, stride=2, untraversable_cost=10.0: (
+        (b.prev_path_to_goal - b.path_to_goal) / scale
+    ),
     R.heading: lambda b: 1.0 - 2.0 * np.sqrt(np.minimum(np.abs(b.heading_error), math.pi) / math.pi),
     R.roll: lambda b, deadband_deg=5.0, power=2.0: _tilt(b.max_abs_roll, deadband_deg, power),
     R.pitch: lambda b, deadband_deg=5.0, power=2.0: _tilt(b.max_abs_pitch, deadband_deg, power),

@@ -75,6 +75,15 @@ class _World:
         self.goal_low = env._goal_low
         self.goal_high = env._goal_high
         self.box = np.array(env._waypoint_box)  # x0, x1, y0, y1
+        self.goal_distance = env.goal_distance  # the goal-distance field a reward term reads (None: none does)
+        self.goal_fields = np.zeros((n, *env.goal_distance.shape)) if env.goal_distance is not None else None
+
+    def path_to_goal(self, xy: np.ndarray, out: np.ndarray, rows: np.ndarray | None = None) -> None:
+        """``out[r]``: the path distance from this world's rover ``r`` (at ``xy[r]``) to its goal, for its rovers
+        among ``rows`` (default: all of them); nothing when no reward term reads it."""
+        if self.goal_distance is not None:
+            mine = self.rows if rows is None else rows[np.isin(rows, self.rows)]
+            out[mine] = self.goal_distance.at_rows(self.goal_fields, mine, xy)
 
 
 class BatchedRoverEnv(VecEnv):
@@ -152,6 +161,7 @@ class BatchedRoverEnv(VecEnv):
         self.distance = np.zeros(n)
         self.heading_error = np.zeros(n)
         self.start_distance = np.zeros(n)
+        self.path_to_goal = np.full(n, np.nan)
         self.steps = np.zeros(n, dtype=np.int64)
         self.path_length = np.zeros(n)
         self.max_tilt = np.zeros(n)
@@ -214,7 +224,7 @@ class BatchedRoverEnv(VecEnv):
         actions, self._actions = self._actions, None
         n, rows = self.n, np.arange(self.n)
         self.waypoint[:] = self._waypoints(actions)
-        prev_distance = self.distance.copy()
+        prev_distance, prev_path = self.distance.copy(), self.path_to_goal.copy()
         self._controller_estimates()
         max_wp = float(np.hypot(*(self.waypoint - self.ctrl_est[:, :2]).T).max())
         if self._capacity(max_wp) > self.trace.shape[1]:
@@ -232,13 +242,16 @@ class BatchedRoverEnv(VecEnv):
         self.time_over_tilt += stats[:, 4]
         self._mark_hazards()
         self._observe(rows)
+        for part in self.parts:
+            part.path_to_goal(self.state, self.path_to_goal)
         outcome = self._outcomes(stats[:, 0])
         truncated = np.isin(outcome, ("timeout", "stuck"))
         terminated = (outcome != "") & ~truncated
         batch = BatchContext(
             prev_distance, self.distance.copy(), self.heading_error.copy(), stats[:, 2], stats[:, 3],
             self.duration.copy(), _NAMES[self.code], outcome, self.steps.copy(), self.path_length.copy(),
-            self.start_distance.copy(), lambda k: self._context(k, prev_distance, outcome),
+            self.start_distance.copy(), lambda k: self._context(k, prev_distance, prev_path, outcome), prev_path,
+            self.path_to_goal.copy(),
         )  # fmt: skip
         reward, terms = self.rewards(batch)
         self.last_reward_terms = terms
@@ -424,7 +437,7 @@ class BatchedRoverEnv(VecEnv):
         outcome[idx[~stuck & late]] = "timeout"
         return outcome
 
-    def _context(self, k: int, prev_distance: np.ndarray, outcome: np.ndarray) -> RewardContext:
+    def _context(self, k: int, prev_distance: np.ndarray, prev_path: np.ndarray, outcome: np.ndarray) -> RewardContext:
         """Rover ``k``'s scalar reward context (for a term that is not built in)."""
         result = waypoint_result(
             OUTCOME_CODES[self.code[k]],
@@ -442,6 +455,8 @@ class BatchedRoverEnv(VecEnv):
             int(self.steps[k]),
             float(self.path_length[k]),
             float(self.start_distance[k]),
+            float(prev_path[k]),
+            float(self.path_to_goal[k]),
         )
 
     def _reset_rovers(self, rows: np.ndarray) -> None:
@@ -455,6 +470,8 @@ class BatchedRoverEnv(VecEnv):
             ep = sampler.sample(rng)
             self.drawn[i] = sampler.episodes_drawn
             self.start[i], self.goal[i] = ep.start, ep.goal
+            if part.goal_fields is not None:
+                part.goal_distance.field(ep.goal, out=part.goal_fields[i])
             part.sensor.reset(i, rng)
             z, rp = part.env.dynamics._poses(ep.start[None, :], np.array([ep.yaw]))
             self.state[i] = (
@@ -478,6 +495,8 @@ class BatchedRoverEnv(VecEnv):
         self._observe(rows)
         self.max_tilt[rows] = 0.0
         self.start_distance[rows] = self.distance[rows]
+        for part in self.parts:
+            part.path_to_goal(self.state, self.path_to_goal, rows)
 
     def _obs(self, rows: np.ndarray | None = None) -> dict[str, np.ndarray]:
         """The observation dict of ``rows`` (every rover: copies of the buffers)."""
