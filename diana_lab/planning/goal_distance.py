@@ -3,8 +3,8 @@
 Why: the ``progress`` term pays metres gained on the straight line to the goal, so a drive into a dead end or up to
 a wall pays as well as one round it, and only the discount tells the detour that SPL rewards from the one it
 punishes. Embodied-navigation benchmarks (Habitat's PointNav) pay the change in *geodesic* distance instead: a
-potential-based shaping (Ng, Harada and Russell, 1999), so it leaves the best policy unchanged while telling the
-learner at every step whether the drive brought the goal nearer along a way the rover can drive. The field is
+potential-based shaping (Ng, Harada and Russell, 1999; undiscounted, as ``progress`` is), which tells the learner
+at every step whether the drive brought the goal nearer along a way the rover can drive. The field is
 training-time knowledge only (the reward); nothing the policy observes or runs on changes.
 
 The field is the least cost from every cell to the goal on the planner's cost map, coarsened by ``stride`` cells
@@ -121,6 +121,14 @@ def _bilinear(field, u, v):  # pragma: no cover (numba)
     return top * (1.0 - fv) + bottom * fv
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _queue(heads, nxt, items, keys, n, cell, d, res):  # pragma: no cover (numba)
+    """Queue entry ``n`` (``cell`` at distance ``d``) in its bucket of the ring ``heads``; the next free entry."""
+    b = int(d / res) % heads.shape[0]
+    items[n], keys[n], nxt[n], heads[b] = cell, d, heads[b], n
+    return n + 1
+
+
 @njit(cache=True, nogil=True)
 def _search(cost, dist, res, gu, gv, offsets, half_steps, heads, nxt, items, keys):  # pragma: no cover (numba)
     """Dijkstra over the framed grid from the goal at (unframed) cell coordinates ``(gu, gv)``: the (up to four)
@@ -138,7 +146,7 @@ def _search(cost, dist, res, gu, gv, offsets, half_steps, heads, nxt, items, key
         flat[j * w + 1 : j * w + 1 + nx] = np.inf
     ring = heads.shape[0]
     heads[:] = -1
-    n, pending = 0, 0
+    n, popped = 0, 0  # entries queued, and taken out
     iu = min(max(int(math.floor(gu)), 0), nx - 1)
     iv = min(max(int(math.floor(gv)), 0), ny - 1)
     for dj in range(2):
@@ -148,17 +156,14 @@ def _search(cost, dist, res, gu, gv, offsets, half_steps, heads, nxt, items, key
             d = math.hypot(i - gu, j - gv) * res * flat_cost[c]
             if d < flat[c]:
                 flat[c] = d
-                b = int(d / res) % ring
-                items[n], keys[n], nxt[n], heads[b] = c, d, heads[b], n
-                n += 1
-                pending += 1
+                n = _queue(heads, nxt, items, keys, n, c, d, res)
     k = 0
-    while pending > 0:
+    while popped < n:
         b = k % ring
         while heads[b] >= 0:
             e = heads[b]
             heads[b] = nxt[e]
-            pending -= 1
+            popped += 1
             u, key = items[e], keys[e]
             if key > flat[u]:
                 continue
@@ -168,8 +173,5 @@ def _search(cost, dist, res, gu, gv, offsets, half_steps, heads, nxt, items, key
                 d = key + half_steps[m] * (cu + flat_cost[v])
                 if d < flat[v]:
                     flat[v] = d
-                    bv = int(d / res) % ring
-                    items[n], keys[n], nxt[n], heads[bv] = v, d, heads[bv], n
-                    n += 1
-                    pending += 1
+                    n = _queue(heads, nxt, items, keys, n, v, d, res)
         k += 1
