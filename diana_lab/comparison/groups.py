@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from diana_lab.comparison.runs import tag
+from diana_lab.tracking.host import HOST_TAG
 
 __all__ = [
     "IGNORED_PARAMS",
@@ -127,7 +128,8 @@ def _metric_column(metric: str) -> str:
 
 
 def runs_table(grouped: pd.DataFrame, group_by: Sequence[str], metrics: Sequence[str]) -> pd.DataFrame:
-    """One row per run: id, name, status, group, chosen options, seed, then the metrics (NaN if not logged)."""
+    """One row per run: id, name, status, group, chosen options, seed, the CPU it trained on ("" where not
+    tagged), then the metrics (NaN if not logged)."""
     table = pd.DataFrame(
         {
             "run_id": grouped["run_id"],
@@ -137,6 +139,7 @@ def runs_table(grouped: pd.DataFrame, group_by: Sequence[str], metrics: Sequence
             **{g: grouped[g] for g in group_by},
             "variant": grouped["variant"],
             "seed": grouped["seed"],
+            HOST_TAG: tag(grouped, HOST_TAG),
         }
     )
     for m in metrics:

@@ -1,5 +1,6 @@
-"""One comparison end to end: query, group, aggregate, curves -- and the files ``python -m diana_lab.compare``
-writes (``runs.csv``/``.md``, ``groups.csv``/``.md``, ``curves_<metric>.png``, ``final_metrics.png``).
+"""One comparison end to end: query, group, aggregate, curves, pairs -- and the files ``python -m diana_lab.compare``
+writes (``runs.csv``/``.md``, ``groups.csv``/``.md``, ``paired.csv``/``.md`` with a baseline,
+``curves_<metric>.png``, ``final_metrics.png``).
 
 :func:`compare_runs` is what notebooks call (everything in memory, as pandas); :func:`write_report` is the
 CLI's second half. CSVs keep full precision and full run ids (``policy=<run id>`` evaluates one); the
@@ -24,8 +25,10 @@ from diana_lab.comparison.groups import (
     runs_table,
     unfinished_runs,
 )
+from diana_lab.comparison.paired import empty, mixed_host_groups, paired_differences, resolve_baseline
 from diana_lab.comparison.plots import plot_final_metrics, plot_learning_curves, save_figure
 from diana_lab.comparison.runs import ComparisonError, load_runs, metric_histories
+from diana_lab.tracking.host import HOST_TAG
 
 __all__ = ["DEFAULT_CURVES", "DEFAULT_GROUP_BY", "DEFAULT_METRICS", "Comparison", "compare_runs", "write_report"]
 
@@ -57,6 +60,9 @@ class Comparison:
     skipped: list[str] = field(default_factory=list)  # names of matching runs without any of the metrics
     repeated_seeds: dict[str, list[str]] = field(default_factory=dict)  # group -> seeds two of its runs share
     unfinished: dict[str, list[str]] = field(default_factory=dict)  # group -> its runs that did not finish
+    mixed_hosts: dict[str, list[str]] = field(default_factory=dict)  # group -> the kinds of CPU its runs trained on
+    baseline: str = ""  # the group the others are paired against ("": no paired table)
+    paired: pd.DataFrame = field(default_factory=empty)  # per group and metric, against the baseline by seed
 
 
 def _missing(raw: pd.DataFrame, wanted: Sequence[str]) -> dict[str, list[str]]:
@@ -74,14 +80,18 @@ def compare_runs(
     group_by: Sequence[str] = DEFAULT_GROUP_BY,
     variants: bool = True,
     include_evaluations: bool = False,
+    baseline: str = "",
 ) -> Comparison:
-    """Load the runs matching ``filter_string`` and compare them (see :mod:`diana_lab.comparison.groups`)."""
+    """Load the runs matching ``filter_string`` and compare them (see :mod:`diana_lab.comparison.groups`); with
+    ``baseline`` (a group's label, a part of exactly one, or one of its runs' ids), also every other group against
+    it, paired by seed (:mod:`diana_lab.comparison.paired`)."""
     group_by, metrics, curves = tuple(group_by), tuple(metrics), tuple(curves)
     found = load_runs(uri, experiments, filter_string, include_evaluations)
     _check_group_by(found, group_by)
     found, skipped = _with_metrics(found, (*metrics, *curves), filter_string)
     raw = assign_groups(found, group_by, variants)
     table = runs_table(raw, group_by, metrics)
+    base = resolve_baseline(table, baseline) if baseline else ""
     histories = metric_histories(uri, list(raw["run_id"]), curves)
     curve_frame = learning_curves(histories, raw.set_index("run_id")["group"])
     return Comparison(
@@ -96,6 +106,9 @@ def compare_runs(
         skipped=skipped,
         repeated_seeds=repeated_seeds(table),
         unfinished=unfinished_runs(table),
+        mixed_hosts=mixed_host_groups(table),
+        baseline=base,
+        paired=paired_differences(table, base, metrics) if base else empty(),
     )
 
 
@@ -147,11 +160,43 @@ def groups_markdown(c: Comparison) -> str:
     return view.to_markdown(index=False, disable_numparse=True)
 
 
+def paired_markdown(c: Comparison) -> str:
+    """The paired table: per group and metric, the mean difference to the baseline with its 95 % interval."""
+    p = c.paired
+    view = pd.DataFrame(
+        {
+            "group": p["group"],
+            "metric": p["metric"],
+            "pairs": p["pairs"],
+            "seeds": p["seeds"],
+            "baseline": [_number(x) for x in p["baseline_mean"]],
+            "group mean": [_number(x) for x in p["group_mean"]],
+            "difference": [_number(x, signed=True) for x in p["diff_mean"]],
+            "95 % interval": [_interval(lo, hi) for lo, hi in zip(p["ci95_low"], p["ci95_high"], strict=True)],
+            "t": [_number(x, digits=2) for x in p["t"]],
+            "p (two-sided)": [_number(x) for x in p["p_two_sided"]],
+            "hosts": p["hosts"],
+        }
+    )
+    return view.to_markdown(index=False, disable_numparse=True)
+
+
+def _interval(low: float, high: float) -> str:
+    return "-" if not math.isfinite(low) else f"{low:+.3f} .. {high:+.3f}"
+
+
+def _number(x: float, signed: bool = False, digits: int = 3) -> str:
+    if not math.isfinite(x):
+        return "-"
+    return f"{x:+.{digits}f}" if signed else f"{x:.{digits}f}"
+
+
 def runs_markdown(c: Comparison) -> str:
     view = c.runs.copy()
     view["run_id"] = view["run_id"].str[:8]
     constant = [g for g in c.group_by if view[g].nunique() <= 1]
-    view = view.drop(columns=[*constant, *(["variant"] if (view["variant"] == "").all() else [])])
+    unused = [k for k in ("variant", HOST_TAG) if (view[k] == "").all()]
+    view = view.drop(columns=[*constant, *unused])
     return view.to_markdown(index=False, floatfmt=".3f")
 
 
@@ -163,6 +208,10 @@ def write_report(c: Comparison, output: Path) -> list[Path]:
     files[1].write_text(runs_markdown(c) + "\n")
     c.groups.to_csv(files[2], index=False)
     files[3].write_text(groups_markdown(c) + "\n")
+    if c.baseline:
+        files += [output / "paired.csv", output / "paired.md"]
+        c.paired.to_csv(files[-2], index=False)
+        files[-1].write_text(f"Against the baseline group {c.baseline!r}, paired by seed:\n\n{paired_markdown(c)}\n")
     for metric in c.curve_metrics:
         files.append(
             save_figure(plot_learning_curves(c.curves, metric), output / f"curves_{metric.replace('/', '_')}.png")

@@ -17,12 +17,13 @@ from typing import Any
 
 from omegaconf import DictConfig, OmegaConf
 
+from diana_lab.tracking.host import HOST_TAG
 from diana_lab.tracking.names import EVAL_PREFIX, EXPERIMENT_TAGS, eval_metrics
 
 __all__ = ["log_evaluation", "log_summary", "metrics_of", "tracking_settings"]
 
 DEFAULT_EXPERIMENT = "diana_lab"
-PARENT_TAGS = ("algo", "seed")  # what the policy was trained as, copied from the training run
+PARENT_TAGS = ("algo", "seed", HOST_TAG)  # what the policy was trained as (and on), copied from the training run
 
 
 def tracking_settings(cfg: DictConfig) -> tuple[bool, str | None, str]:
@@ -94,7 +95,8 @@ def log_evaluation(
 
 
 def _group_tags(client: Any, params: dict[str, Any], parent_run_id: str | None) -> dict[str, str]:
-    """The evaluation run's tags: its kind, the env options it ran on, the parent's ``algo`` and ``seed``."""
+    """The evaluation run's tags: its kind, the env options it ran on, the parent's ``algo``, ``seed`` and
+    ``host_cpu`` (the CPU that trained the weights, which is what a paired comparison must match)."""
     from diana_lab.tracking.names import TAG_GROUPS
 
     tags = {"diana_lab.kind": "evaluation"}

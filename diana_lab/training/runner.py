@@ -44,6 +44,7 @@ from diana_lab.experts.perceived import check_perceivable
 from diana_lab.tracking import MLflowOutputFormat, MlflowTracker, Tracker, resolve_uri
 from diana_lab.tracking.atomic import uninterrupted
 from diana_lab.tracking.git import git_commit, git_dirty
+from diana_lab.tracking.host import HOST_TAG, cpu_model
 from diana_lab.tracking.names import eval_metrics
 from diana_lab.tracking.params import flatten, truncate
 from diana_lab.training.checkpoints import TrackedCheckpoints
@@ -180,6 +181,7 @@ class TrainingRun:
             "mlflow.source.git.commit": commit,
             "git_dirty": git_dirty(),
             "overrides": self.ctx.override_string,
+            HOST_TAG: cpu_model(),
             **self.ctx.tags,
         }
         if self.ctx.job_num is not None:

@@ -74,3 +74,30 @@ def make_store(tmp: Path, experiment: str = "diana_lab") -> str:
     client.log_batch(ev.info.run_id, metrics=[Metric("eval_success_rate", 1.0, 0, 0), Metric("eval_spl", 0.9, 0, 0)])
     client.set_terminated(ev.info.run_id, "FINISHED")
     return uri
+
+
+PAIRED = {  # learning rate -> seed -> (eval_spl, host_cpu): a baseline and a candidate on three seeds
+    "0.0003": {0: (0.50, "cpu A"), 1: (0.60, "cpu A"), 2: (0.55, "cpu A")},
+    "0.001": {0: (0.55, "cpu A"), 1: (0.62, "cpu A"), 2: (0.65, "cpu B")},
+}
+
+
+def make_paired_store(tmp: Path) -> str:
+    """Two PPO configs (:data:`PAIRED`) on seeds 0-2, tagged with the CPU each trained on; seed 2 of the
+    candidate trained on another kind of CPU. Returns the store's URI."""
+    uri = f"sqlite:///{tmp}/mlflow.db"
+    client = MlflowClient(uri)
+    exp = client.create_experiment("diana_lab", artifact_location=(tmp / "mlruns").as_uri())
+    for lr, seeds in PAIRED.items():
+        for seed, (spl, host) in seeds.items():
+            rid = client.create_run(exp, run_name=f"ppo-lr{lr}-s{seed}").info.run_id
+            tags = {**GROUPS, "algo": "ppo", "seed": str(seed), "host_cpu": host}
+            params = {"seed": str(seed), "algo.name": "ppo", "algo.learning_rate": lr}
+            client.log_batch(
+                rid,
+                metrics=[Metric("eval_spl", spl, 1000, 300), Metric("eval_success_rate", spl + 0.2, 1000, 300)],
+                params=[Param(k, v) for k, v in params.items()],
+                tags=[RunTag(k, v) for k, v in tags.items()],
+            )
+            client.set_terminated(rid, "FINISHED")
+    return uri

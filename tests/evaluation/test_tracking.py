@@ -61,6 +61,7 @@ def test_run_id_policy_loads_the_model_and_logs_a_child_run(tmp_path, flat_env, 
     mlflow.set_tracking_uri(uri)
     exp = MlflowClient().create_experiment("diana_lab", artifact_location=(tmp_path / "mlruns").as_uri())
     with mlflow.start_run(experiment_id=exp) as parent:  # what the training runner logs
+        mlflow.set_tags({"algo": "ppo", "seed": "3", "host_cpu": "Some CPU @ 1.0GHz"})
         mlflow.log_artifact(str(model_dir / "model.zip"), "model")
         mlflow.log_artifact(str(hydra_dir / "config.yaml"), ".hydra")
     parent_id = parent.info.run_id
@@ -76,5 +77,11 @@ def test_run_id_policy_loads_the_model_and_logs_a_child_run(tmp_path, flat_env, 
     assert len(children) == 1
     child = children[0]
     assert child.data.metrics["eval_episodes"] == 2.0 and "eval_success_rate" in child.data.metrics
+    # what the weights were trained as and on: a comparison pairs evaluations by these
+    assert {k: child.data.tags.get(k) for k in ("algo", "seed", "host_cpu")} == {
+        "algo": "ppo",
+        "seed": "3",
+        "host_cpu": "Some CPU @ 1.0GHz",
+    }
     artefacts = {a.path for a in client.list_artifacts(child.info.run_id)}
     assert {"summary.json", "episodes.csv", "trajectories.png"} <= artefacts

@@ -5,6 +5,8 @@ from __future__ import annotations
 import pytest
 from hydra.utils import get_class
 
+from diana_lab.tracking.host import cpu_model
+
 from .helpers import ALGO_TINY, TINY, run_in_process, runs, store_args
 
 CLASSES = {
@@ -28,6 +30,7 @@ def test_run_finishes_with_params_metrics_and_loadable_model(algo, tmp_path):
     assert run.data.tags["algo"] == algo and run.data.tags["world"] == "flat"
     assert run.data.tags["sensor"] == "depth_camera" and run.data.tags["dynamics"] == "kinematic"
     assert f"algo={algo}" in run.data.tags["overrides"] and run.data.tags["git_commit"]
+    assert run.data.tags["host_cpu"] == cpu_model()  # a seed reproduces on one kind of CPU only
     assert run.data.params["algo.name"] == algo and run.data.params["train.total_timesteps"] == "256"
     assert run.data.params["sensor.width"] == "16"
     metrics = run.data.metrics
