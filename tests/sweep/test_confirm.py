@@ -24,6 +24,22 @@ def test_top_trials_and_the_baseline_are_re_run_on_the_given_seeds_once(tmp_path
     assert [t.params for t in study.trials] == [source.trials[n].params for n in expected]  # the same points
     assert [bool(t.user_attrs.get("baseline")) for t in study.trials] == [n == 0 for n in expected]
     assert all(t.user_attrs["seeds"] == [1, 2] and len(t.user_attrs["run_ids"]) == 2 for t in study.trials)
+    # each re-run trial against the baseline's, seed by seed: python -m diana_lab.compare baseline=<its run id>
+    from diana_lab.comparison import compare_runs
+
+    baseline = next(t for t in study.trials if t.user_attrs.get("baseline"))
+    c = compare_runs(
+        f"sqlite:///{tmp_path}/mlflow.db",
+        ["diana_lab"],
+        "tags.optuna_study = 'tiny_top'",
+        metrics=["eval_spl"],
+        curves=[],
+        baseline=baseline.user_attrs["run_ids"][0],
+    )
+    assert len(c.groups) == len(expected)  # one group per trial: its seeds' runs, not the trial's mean run
+    assert len(c.paired) == len(expected) - 1
+    assert list(c.paired["pairs"]) == [2] * (len(expected) - 1) and set(c.paired["seeds"]) == {"1,2"}
+    assert set(c.paired["hosts"]) == {"same"}  # every run of this test trained here
     # a rerun of the same command finds every re-run done: nothing enqueued or trained again
     assert run_in_process(sweep_args(tmp_path, path, *confirm, out="again")) == 0
     assert len(load_study(tmp_path, "tiny_top").trials) == len(expected)
