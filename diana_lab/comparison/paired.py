@@ -75,7 +75,7 @@ def _per_seed(block: pd.DataFrame, metric: str) -> pd.DataFrame:
 
 def _hosts(a: pd.Series, b: pd.Series) -> str:
     """``same`` when each pair's runs trained on one named kind of CPU; ``mixed (k of n pairs)``; ``unknown``."""
-    mixed = sum(1 for x, y in zip(a, b, strict=True) if len(x | y) > 1 and "" not in x | y)
+    mixed = sum(1 for x, y in zip(a, b, strict=True) if len((x | y) - {""}) > 1)
     if mixed:
         return f"mixed ({mixed} of {len(a)} pairs)"
     if any("" in x | y for x, y in zip(a, b, strict=True)):

@@ -70,10 +70,12 @@ def test_runs_repeating_a_seed_count_once_with_their_mean():
         (("x", "y"), "mixed (1 of 2 pairs)"),
         (("", "x"), "unknown"),
         (("y", ""), "mixed (1 of 2 pairs)"),  # one pair is known to differ: that outweighs the unknown one
+        (("x", "x", "y", ""), "mixed (1 of 2 pairs)"),  # seed 1 run three times, one untagged: still known mixed
     ],
 )
 def test_hosts_say_whether_each_pair_trained_on_one_kind_of_cpu(hosts_b, expected):
-    t = table([*BASE, ("B", "0", 0.5, hosts_b[0]), ("B", "1", 0.5, hosts_b[1])])
+    seeds = ["0", *["1"] * (len(hosts_b) - 1)]  # B's runs: seed 0, then seed 1 (once or more)
+    t = table([*BASE, *(("B", s, 0.5, h) for s, h in zip(seeds, hosts_b, strict=True))])
     assert paired_differences(t, "A", ["eval_spl"]).iloc[0]["hosts"] == expected
 
 
