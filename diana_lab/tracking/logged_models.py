@@ -10,9 +10,30 @@ experiment's models whose source run is the run).
 
 from __future__ import annotations
 
+import contextlib
+import os
+from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["log_model_to_run"]
+__all__ = ["log_model_to_run", "no_artifact_bars"]
+
+ARTIFACT_BARS = "MLFLOW_ENABLE_ARTIFACTS_PROGRESS_BAR"
+
+
+@contextlib.contextmanager
+def no_artifact_bars() -> Iterator[None]:
+    """Without MLflow's "Downloading artifacts" bars, which ``Model.log`` draws when it loads the model back to
+    check its input example: on a terminal they flash past, in a job's log file (``nohup``, a cluster) they are
+    lines of carriage returns among the run's plain progress lines. The user's own setting is restored after."""
+    saved = os.environ.get(ARTIFACT_BARS)
+    os.environ[ARTIFACT_BARS] = "false"
+    try:
+        yield
+    finally:
+        if saved is None:
+            os.environ.pop(ARTIFACT_BARS, None)
+        else:
+            os.environ[ARTIFACT_BARS] = saved
 
 
 def log_model_to_run(uri: str, run_id: str, name: str, flavor: Any, **kwargs: Any) -> Any:
@@ -25,7 +46,7 @@ def log_model_to_run(uri: str, run_id: str, name: str, flavor: Any, **kwargs: An
 
     from diana_lab.tracking.atomic import uninterrupted
 
-    with uninterrupted():  # Ctrl-C waits: a half-written model would be left PENDING, SQLite locked
+    with uninterrupted(), no_artifact_bars():  # Ctrl-C waits: a half-written model would be left PENDING
         mlflow.set_tracking_uri(uri)
         experiment_id = MlflowClient(uri).get_run(run_id).info.experiment_id
         model = mlflow.initialize_logged_model(name=name, source_run_id=run_id, experiment_id=experiment_id)

@@ -5,6 +5,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import subprocess
 import sys
 import textwrap
@@ -52,7 +54,10 @@ class Trained:
         self.tmp = tmp
         self.uri = f"sqlite:///{tmp}/mlflow.db"
         args = ["algo=ppo", *TINY, *ALGO_TINY["ppo"], *store_args(tmp), f"tracking.register_model={NAME}"]
-        assert run_in_process(args) == 0
+        console = io.StringIO()
+        with contextlib.redirect_stdout(console), contextlib.redirect_stderr(console):
+            assert run_in_process(args) == 0
+        self.console = console.getvalue()
         self.client, (run,) = runs(tmp)
         self.run = run
         self.run_id = run.info.run_id
@@ -108,6 +113,13 @@ def test_a_run_logs_its_final_and_best_policy_as_mlflow_models_with_a_signature(
     # the run's own artefacts, which policy=<run id> and train.resume read, are where they were
     names = {a.path for a in trained.client.list_artifacts(trained.run_id, "model")}
     assert "model/model.zip" in names
+
+
+def test_logging_the_models_draws_no_download_bars_on_the_console(trained):
+    # Model.log loads each model back to check its input example; MLflow's bars for that would be lines of
+    # carriage returns in a job's log, between the progress lines and the summary
+    assert "MLflow run id" in trained.console  # the console was captured: the run's summary is there
+    assert "Downloading artifacts" not in trained.console
 
 
 def test_a_fresh_process_loads_the_model_and_gets_the_sb3_models_waypoints(trained, recorded, tmp_path):
@@ -244,3 +256,18 @@ def test_the_pyfunc_maps_a_continuous_policy_like_the_env_with_its_statistics(tm
     assert np.abs(out["local_offset"]).max() > 0.5  # actions away from 0: the mapping is exercised
     with pytest.raises(ValueError, match="missing observation keys"):
         model.predict(None, {"goal": batch["goal"]})
+
+
+@pytest.mark.parametrize("setting", [None, "true"])
+def test_the_users_own_artifact_bar_setting_is_restored(monkeypatch, setting):
+    import os
+
+    from diana_lab.tracking.logged_models import ARTIFACT_BARS, no_artifact_bars
+
+    if setting is None:
+        monkeypatch.delenv(ARTIFACT_BARS, raising=False)
+    else:
+        monkeypatch.setenv(ARTIFACT_BARS, setting)
+    with no_artifact_bars():
+        assert os.environ[ARTIFACT_BARS] == "false"
+    assert os.environ.get(ARTIFACT_BARS) == setting
