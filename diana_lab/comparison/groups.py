@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import fnmatch
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -25,6 +25,7 @@ __all__ = [
     "IGNORED_PARAMS",
     "aggregate",
     "assign_groups",
+    "in_seed_order",
     "learning_curves",
     "repeated_seeds",
     "runs_table",
@@ -153,7 +154,7 @@ def _seeds(block: pd.DataFrame) -> pd.Series:
     return block["seed"].astype(str).replace("", "?")
 
 
-def _in_seed_order(seeds: Sequence[str]) -> list[str]:
+def in_seed_order(seeds: Iterable[str]) -> list[str]:
     return sorted(seeds, key=lambda s: (len(s), s))  # numerically for the integers they are: 2 before 10
 
 
@@ -166,7 +167,7 @@ def aggregate(table: pd.DataFrame, group_by: Sequence[str], metrics: Sequence[st
         row.update({g: block[g].iloc[0] for g in group_by})
         row["variant"] = block["variant"].iloc[0]
         row["runs"] = len(block)
-        row["seeds"] = ",".join(_in_seed_order(_seeds(block)))
+        row["seeds"] = ",".join(in_seed_order(_seeds(block)))
         for m in metrics:
             values = block[m].astype(float)
             row[f"{m}_mean"] = values.mean()
@@ -182,7 +183,7 @@ def repeated_seeds(table: pd.DataFrame) -> dict[str, list[str]]:
     out: dict[str, list[str]] = {}
     for name, block in table.groupby("group", sort=False):
         counts = _seeds(block).value_counts()
-        repeated = _in_seed_order(counts.index[counts > 1])
+        repeated = in_seed_order(counts.index[counts > 1])
         if repeated:
             out[str(name)] = repeated
     return out

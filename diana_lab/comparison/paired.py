@@ -21,7 +21,9 @@ from collections.abc import Sequence
 import pandas as pd
 from scipy import stats
 
+from diana_lab.comparison.groups import in_seed_order
 from diana_lab.comparison.runs import ComparisonError
+from diana_lab.tracking.host import HOST_TAG
 
 __all__ = ["COLUMNS", "empty", "mixed_host_groups", "paired_differences", "resolve_baseline"]
 
@@ -68,9 +70,9 @@ def resolve_baseline(table: pd.DataFrame, baseline: str) -> str:
 def _per_seed(block: pd.DataFrame, metric: str) -> pd.DataFrame:
     """One row per seed with a finite value: the value (the mean of runs repeating a seed) and its hosts."""
     rows = block[block["seed"].astype(str) != ""].dropna(subset=[metric])
-    host = rows["host_cpu"] if "host_cpu" in rows else pd.Series("", index=rows.index)
-    rows = rows.assign(seed=rows["seed"].astype(str), host_cpu=host.fillna("").astype(str))
-    return rows.groupby("seed").agg(value=(metric, "mean"), hosts=("host_cpu", lambda h: frozenset(h)))
+    host = rows[HOST_TAG] if HOST_TAG in rows else pd.Series("", index=rows.index)
+    rows = rows.assign(seed=rows["seed"].astype(str), **{HOST_TAG: host.fillna("").astype(str)})
+    return rows.groupby("seed").agg(value=(metric, "mean"), hosts=(HOST_TAG, frozenset))
 
 
 def _hosts(a: pd.Series, b: pd.Series) -> str:
@@ -81,10 +83,6 @@ def _hosts(a: pd.Series, b: pd.Series) -> str:
     if any("" in x | y for x, y in zip(a, b, strict=True)):
         return "unknown"
     return "same"
-
-
-def _seed_key(seed: str) -> tuple[int, str]:
-    return len(seed), seed
 
 
 def paired_differences(table: pd.DataFrame, baseline: str, metrics: Sequence[str]) -> pd.DataFrame:
@@ -100,7 +98,7 @@ def paired_differences(table: pd.DataFrame, baseline: str, metrics: Sequence[str
             if metric not in table:
                 continue
             a, b = _per_seed(base, metric), _per_seed(block, metric)
-            seeds = sorted(set(a.index) & set(b.index), key=_seed_key)
+            seeds = in_seed_order(set(a.index) & set(b.index))
             d = b.loc[seeds, "value"].to_numpy(float) - a.loc[seeds, "value"].to_numpy(float)
             n = len(d)
             mean = float(d.mean()) if n else math.nan
@@ -135,11 +133,11 @@ def paired_differences(table: pd.DataFrame, baseline: str, metrics: Sequence[str
 def mixed_host_groups(table: pd.DataFrame) -> dict[str, list[str]]:
     """Groups whose runs trained on more than one named kind of CPU, with those kinds: their spread over seeds
     includes the hosts' difference."""
-    if "host_cpu" not in table:
+    if HOST_TAG not in table:
         return {}
     out: dict[str, list[str]] = {}
     for name, block in table.groupby("group", sort=False):
-        kinds = sorted({h for h in block["host_cpu"].fillna("").astype(str) if h})
+        kinds = sorted({h for h in block[HOST_TAG].fillna("").astype(str) if h})
         if len(kinds) > 1:
             out[str(name)] = kinds
     return out
