@@ -68,7 +68,7 @@ def _policy_calibration(cfg: DictConfig, setup: Any, kinematic: Any) -> Any:
     from diana_lab import config as C
     from diana_lab.envs.rover_nav import RoverNavEnv
     from diana_lab.evaluation.calibration import calibrate_policy
-    from diana_lab.evaluation.compatibility import check_spaces
+    from diana_lab.evaluation.compatibility import check_spaces, settings_note
     from diana_lab.evaluation.loading import load_policy
 
     eval_cfg = C.to_object("eval", cfg.eval)
@@ -80,6 +80,8 @@ def _policy_calibration(cfg: DictConfig, setup: Any, kinematic: Any) -> Any:
     try:
         if loaded.model is not None:  # trained on other observations or actions: refused as evaluate refuses it
             check_spaces(loaded, env, cfg, task_overrides())
+            if note := settings_note(loaded, cfg, task_overrides()):
+                print(note)
         print(f"{loaded.label}: {eval_cfg.episodes} episodes of suite seed {eval_cfg.seed} in physics", flush=True)
         return calibrate_policy(setup, loaded.policy, env, kinematic, eval_cfg)
     finally:

@@ -115,7 +115,7 @@ def run(
     trained in another env names the training's overrides missing from them)."""
     from diana_lab.config import to_object
     from diana_lab.envs.rover_nav import RoverNavEnv
-    from diana_lab.evaluation.compatibility import check_spaces
+    from diana_lab.evaluation.compatibility import check_spaces, settings_note
     from diana_lab.evaluation.core import evaluate, sweep_sensor_noise
     from diana_lab.evaluation.loading import load_policy
     from diana_lab.evaluation.metrics import to_json
@@ -145,6 +145,8 @@ def run(
     try:
         if loaded.model is not None:
             check_spaces(loaded, env, cfg, overrides)
+            if note := settings_note(loaded, cfg, overrides):
+                print(note)
         if eval_cfg.sensor_noise:
             levels = sweep_sensor_noise(loaded.policy, env, eval_cfg, out_dir)
             summaries = {f"{level:g}": s for level, s in levels.items()}

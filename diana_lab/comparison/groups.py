@@ -49,6 +49,7 @@ IGNORED_PARAMS = (
 )
 MAX_LABEL_ITEMS = 3  # params named in a variant label before "+N more"
 MAX_VALUE_CHARS = 24
+UNSET = "unset"  # a label's word for a key a run did not log or logged as null (a blank read as a typo)
 
 
 def _param_columns(df: pd.DataFrame) -> list[str]:
@@ -61,7 +62,7 @@ def _short(value: str) -> str:
 
 
 def _label(row: pd.Series, columns: Sequence[str]) -> str:
-    items = [f"{c[len('params.') :]}={_short(row[c])}" for c in columns[:MAX_LABEL_ITEMS]]
+    items = [f"{c[len('params.') :]}={_short(row[c]) or UNSET}" for c in columns[:MAX_LABEL_ITEMS]]
     extra = len(columns) - MAX_LABEL_ITEMS
     return ", ".join(items) + (f" +{extra} more" if extra > 0 else "")
 

@@ -29,6 +29,7 @@ __all__ = [
     "flat_keys",
     "recorded_overrides",
     "rerun_advice",
+    "settings_note",
 ]
 
 
@@ -190,6 +191,33 @@ def check_spaces(loaded: Any, env: Any, cfg: DictConfig, overrides: Sequence[str
     model = loaded.model
     check_observation_space(model.observation_space, env.observation_space, loaded.label, hints(), advice)
     check_action_space(model.action_space, env.action_space, loaded.label, hints("action_space"), advice)
+
+
+# the groups whose settings change what a policy's observations or actions mean without changing their shapes
+NOTED_GROUPS = ("sensor", "action_space")
+MAX_NOTED_KEYS = 8
+
+
+def settings_note(loaded: Any, cfg: DictConfig, overrides: Sequence[str] = ()) -> str | None:
+    """A note when ``loaded``'s spaces fit but it was trained with other sensor or action-space settings than
+    ``cfg``'s: a lidar mounted elsewhere, another range, other drive lengths for as many candidates. It runs, and
+    may be meant (a noise or transfer test), but its figures are then not those of the set-up it learnt in, and
+    nothing else would say so. Keys the training's config lacks (it predates them) are left out."""
+    if loaded.model is None or loaded.train_cfg is None:
+        return None
+    diffs = []
+    for g in NOTED_GROUPS:
+        trained, here = flat_keys(loaded.train_cfg.get(g)), flat_keys(cfg.get(g))
+        diffs += [f"{g}.{k}: training {v!r}, here {here.get(k)!r}" for k, v in trained.items() if here.get(k, v) != v]
+    if not diffs:
+        return None
+    more = f"; +{len(diffs) - MAX_NOTED_KEYS} more" if len(diffs) > MAX_NOTED_KEYS else ""
+    advice = rerun_advice(loaded.train_overrides, overrides) if loaded.label != "pretrained" else None
+    return (
+        f"note: {loaded.label} was trained with other {' / '.join(NOTED_GROUPS)} settings than this evaluation's "
+        f"({'; '.join(diffs[:MAX_NOTED_KEYS])}{more}); its spaces fit, so it runs as asked."
+        + (f" {advice}" if advice else "")
+    )
 
 
 def _refusal(problem: str, hints: list[str] | None, fallback: str, advice: str | None) -> ConfigError:

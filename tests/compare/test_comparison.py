@@ -190,6 +190,7 @@ def test_a_key_a_run_never_logged_counts_as_null():
     g = assign_groups(runs, ("algo",))
     assert g.loc[0, "group"] == g.loc[1, "group"] != g.loc[2, "group"]
     assert "learning_rate_end=0.0" in g.loc[2, "group"]
+    assert g.loc[0, "group"] == "algo.learning_rate_end=unset"  # a word, not a blank after the "="
 
 
 def test_with_many_groups_the_bar_legend_covers_no_bar(tmp_path):

@@ -163,6 +163,17 @@ def test_evaluating_on_another_robot_than_the_trainings_is_said(tmp_path):
     assert "trained on robot=jackal; evaluating it on robot=husky" in proc.stdout
 
 
+def test_evaluating_with_another_lidar_mount_than_the_trainings_is_said(tmp_path):
+    """Observations of the same shape from a lidar mounted elsewhere: it runs, and says so."""
+    flat = TINY[len(CAMERA_SQUARE) :]
+    proc = evaluate_cli(
+        tmp_path / "run", "policy=pretrained", "+experiment=reference", "sensor.mount_xyz=[0.0,0.0,0.3]", *flat,
+        "eval.episodes=1",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "sensor.mount_xyz: training [0.0, 0.0, 0.5], here [0.0, 0.0, 0.3]" in proc.stdout
+
+
 def test_a_run_evaluated_without_its_trainings_overrides_is_told_which_to_add(tmp_path):
     """``policy=<run id of a +experiment=quick run>`` without the preset was refused naming only the config keys
     that differ; the message ends with the training's own overrides to add, and adding them is enough."""

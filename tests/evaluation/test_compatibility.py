@@ -1,9 +1,12 @@
 """The checks that refuse a model trained for another env (diana_lab.evaluation.compatibility), on spaces and
 configs alone; loading real models and refusing them is in test_loading.py."""
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from gymnasium import spaces
+from omegaconf import OmegaConf
 
 from diana_lab.config import ConfigError, compose
 from diana_lab.evaluation.compatibility import (
@@ -12,6 +15,7 @@ from diana_lab.evaluation.compatibility import (
     config_differences,
     recorded_overrides,
     rerun_advice,
+    settings_note,
 )
 
 
@@ -80,3 +84,46 @@ def test_rerun_advice_names_the_trainings_env_overrides_the_command_line_lacks(t
     (hydra / "overrides.yaml").write_text("- +experiment=quick\n- sensor.width=16\n")
     assert recorded_overrides(hydra / "config.yaml") == ["+experiment=quick", "sensor.width=16"]
     assert recorded_overrides(None) is None
+
+
+def loaded_policy(train_overrides, label="run/model.zip", model=True):
+    return SimpleNamespace(
+        label=label, model=object() if model else None, train_cfg=compose(train_overrides),
+        train_overrides=train_overrides,
+    )  # fmt: skip
+
+
+def test_a_policy_trained_with_its_lidar_mounted_elsewhere_is_said_with_the_override_to_add():
+    """Same shapes, so nothing refused it: a network trained with the lidar 0.6 m up ran on the 0.3 m default
+    without a word (found evaluating a candidate of issue 48's study)."""
+    loaded = loaded_policy(["sensor.mount_xyz=[0.0,0.0,0.6]"])
+    note = settings_note(loaded, compose([]), [])
+    assert note is not None
+    assert "sensor.mount_xyz: training [0.0, 0.0, 0.6], here [0.0, 0.0, 0.3]" in note
+    assert "Re-run with the training's overrides: 'sensor.mount_xyz=[0.0,0.0,0.6]'" in note
+    as_trained = compose(["sensor.mount_xyz=[0.0,0.0,0.6]"])
+    assert settings_note(loaded, as_trained, ["sensor.mount_xyz=[0.0,0.0,0.6]"]) is None
+
+
+def test_other_drive_lengths_for_as_many_candidates_are_said():
+    loaded = loaded_policy(["action_space.distances=[1.0,2.0,4.0]"])
+    note = settings_note(loaded, compose([]))
+    assert note is not None and "action_space.distances: training [1.0, 2.0, 4.0], here [1.0, 2.0, 3.0]" in note
+
+
+def test_no_note_without_a_model_its_training_config_or_a_key_the_training_predates():
+    assert settings_note(loaded_policy(["sensor.max_range=9.0"], model=False), compose([])) is None
+    assert settings_note(SimpleNamespace(label="m", model=object(), train_cfg=None), compose([])) is None
+    old = loaded_policy([])
+    sensor = OmegaConf.to_container(old.train_cfg.sensor)
+    del sensor["max_range"]  # a config saved before the key existed
+    old.train_cfg = OmegaConf.create(
+        {"sensor": sensor, "action_space": OmegaConf.to_container(old.train_cfg.action_space)}
+    )
+    assert settings_note(old, compose(["sensor.max_range=9.0"])) is None
+    assert "sensor.max_range" in settings_note(loaded_policy([]), compose(["sensor.max_range=9.0"]))
+
+
+def test_the_shipped_policy_is_noted_without_run_advice():
+    note = settings_note(loaded_policy([], label="pretrained"), compose(["sensor.max_range=9.0"]))
+    assert note is not None and "sensor.max_range: training 7.0, here 9.0" in note and "Re-run" not in note
