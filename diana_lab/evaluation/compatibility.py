@@ -6,7 +6,8 @@ that differ, since running it would only produce a shape error deep inside torch
 space is refused the same way, since a categorical policy over 16 headings in an env of 64 would run without a
 word. The message ends with what to do (:func:`rerun_advice`): the training's own env overrides, when its
 ``.hydra/overrides.yaml`` was kept (beside its ``config.yaml``, among a run's artefacts), else to repeat the
-overrides it was trained with. Evaluation, ``train.resume`` and the exporter share these checks.
+overrides it was trained with. Evaluation, ``train.resume`` and the exporter share these checks. A model whose
+spaces fit but whose sensor or action-space settings differ runs, with a note naming them (:func:`settings_note`).
 """
 
 from __future__ import annotations
@@ -195,6 +196,7 @@ def check_spaces(loaded: Any, env: Any, cfg: DictConfig, overrides: Sequence[str
 
 # the groups whose settings change what a policy's observations or actions mean without changing their shapes
 NOTED_GROUPS = ("sensor", "action_space")
+SPEED_ONLY_KEYS = frozenset({"sensor.nthreads"})  # how fast observations are made, not what they hold
 MAX_NOTED_KEYS = 8
 
 
@@ -208,7 +210,11 @@ def settings_note(loaded: Any, cfg: DictConfig, overrides: Sequence[str] = ()) -
     diffs = []
     for g in NOTED_GROUPS:
         trained, here = flat_keys(loaded.train_cfg.get(g)), flat_keys(cfg.get(g))
-        diffs += [f"{g}.{k}: training {v!r}, here {here.get(k)!r}" for k, v in trained.items() if here.get(k, v) != v]
+        diffs += [
+            f"{g}.{k}: training {v!r}, here {here.get(k)!r}"
+            for k, v in trained.items()
+            if here.get(k, v) != v and f"{g}.{k}" not in SPEED_ONLY_KEYS
+        ]
     if not diffs:
         return None
     more = f"; +{len(diffs) - MAX_NOTED_KEYS} more" if len(diffs) > MAX_NOTED_KEYS else ""

@@ -122,6 +122,7 @@ def test_no_note_without_a_model_its_training_config_or_a_key_the_training_preda
     )
     assert settings_note(old, compose(["sensor.max_range=9.0"])) is None
     assert "sensor.max_range" in settings_note(loaded_policy([]), compose(["sensor.max_range=9.0"]))
+    assert settings_note(loaded_policy([]), compose(["sensor.nthreads=2"])) is None  # speed, not what it sees
 
 
 def test_the_shipped_policy_is_noted_without_run_advice():
