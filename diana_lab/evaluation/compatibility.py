@@ -47,6 +47,8 @@ def recorded_overrides(config: Path | None) -> list[str] | None:
     return [str(o) for o in loaded] if isinstance(loaded, ListConfig) else None
 
 
+MAX_LISTED_KEYS = 8  # differing config keys a refusal or a note names
+
 # what an override sets the env with: a group of the env, or the preset that sets them (+experiment=quick)
 _ENV_ROOTS = (*GROUPS, "experiment")
 
@@ -97,16 +99,21 @@ def config_differences(
     train_cfg: DictConfig | None,
     eval_cfg: DictConfig | None,
     groups: tuple[str, ...] = ("sensor", "world", "episode"),
+    in_both_only: bool = False,
+    ignore: frozenset[str] = frozenset(),
 ) -> list[str]:
-    """``group.key: training X, here Y`` for the config keys that shape observations (when both are known)."""
+    """``group.key: training X, here Y`` for the config keys that shape observations (when both are known);
+    ``in_both_only``: only keys both configs have (one the training predates is not a difference it made);
+    ``ignore``: full keys left out."""
     if train_cfg is None or eval_cfg is None:
         return []
     diffs = []
     for g in groups:
         a = flat_keys(train_cfg.get(g))
         b = flat_keys(eval_cfg.get(g))
-        for k in sorted(set(a) | set(b)):
-            if a.get(k) != b.get(k):
+        keys = set(a) & set(b) if in_both_only else set(a) | set(b)
+        for k in sorted(keys):
+            if a.get(k) != b.get(k) and f"{g}.{k}" not in ignore:
                 diffs.append(f"{g}.{k}: training {a.get(k)!r}, here {b.get(k)!r}")
     return diffs
 
@@ -197,7 +204,6 @@ def check_spaces(loaded: Any, env: Any, cfg: DictConfig, overrides: Sequence[str
 # the groups whose settings change what a policy's observations or actions mean without changing their shapes
 NOTED_GROUPS = ("sensor", "action_space")
 SPEED_ONLY_KEYS = frozenset({"sensor.nthreads"})  # how fast observations are made, not what they hold
-MAX_NOTED_KEYS = 8
 
 
 def settings_note(loaded: Any, cfg: DictConfig, overrides: Sequence[str] = ()) -> str | None:
@@ -205,29 +211,23 @@ def settings_note(loaded: Any, cfg: DictConfig, overrides: Sequence[str] = ()) -
     ``cfg``'s: a lidar mounted elsewhere, another range, other drive lengths for as many candidates. It runs, and
     may be meant (a noise or transfer test), but its figures are then not those of the set-up it learnt in, and
     nothing else would say so. Keys the training's config lacks (it predates them) are left out."""
-    if loaded.model is None or loaded.train_cfg is None:
+    if loaded.model is None:
         return None
-    diffs = []
-    for g in NOTED_GROUPS:
-        trained, here = flat_keys(loaded.train_cfg.get(g)), flat_keys(cfg.get(g))
-        diffs += [
-            f"{g}.{k}: training {v!r}, here {here.get(k)!r}"
-            for k, v in trained.items()
-            if here.get(k, v) != v and f"{g}.{k}" not in SPEED_ONLY_KEYS
-        ]
+    diffs = config_differences(loaded.train_cfg, cfg, NOTED_GROUPS, in_both_only=True, ignore=SPEED_ONLY_KEYS)
     if not diffs:
         return None
-    more = f"; +{len(diffs) - MAX_NOTED_KEYS} more" if len(diffs) > MAX_NOTED_KEYS else ""
+    more = f"; +{len(diffs) - MAX_LISTED_KEYS} more" if len(diffs) > MAX_LISTED_KEYS else ""
     advice = rerun_advice(loaded.train_overrides, overrides) if loaded.label != "pretrained" else None
     return (
         f"note: {loaded.label} was trained with other {' / '.join(NOTED_GROUPS)} settings than this evaluation's "
-        f"({'; '.join(diffs[:MAX_NOTED_KEYS])}{more}); its spaces fit, so it runs as asked."
+        f"({'; '.join(diffs[:MAX_LISTED_KEYS])}{more}); its spaces fit, so it runs as asked."
         + (f" {advice}" if advice else "")
     )
 
 
 def _refusal(problem: str, hints: list[str] | None, fallback: str, advice: str | None) -> ConfigError:
-    """The error refusing a model: ``problem``, then the config keys that differ from its training's (at most 8;
-    ``fallback``, what to set, when they are not known), then ``advice``, what to re-run with."""
-    hint = f"Differing config keys: {'; '.join(hints[:8])}." if hints else fallback
+    """The error refusing a model: ``problem``, then the config keys that differ from its training's (at most
+    ``MAX_LISTED_KEYS``; ``fallback``, what to set, when they are not known), then ``advice``, what to re-run
+    with."""
+    hint = f"Differing config keys: {'; '.join(hints[:MAX_LISTED_KEYS])}." if hints else fallback
     return ConfigError(" ".join(part for part in (problem, hint, advice) if part))
